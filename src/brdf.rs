@@ -1,0 +1,101 @@
+//! What every BRDF source (analytic model, stored table, measured file) offers the pipeline.
+
+use crate::geometry::Vec3;
+
+/// Names (and, for spectral data, wavelengths) of a BRDF's output channels.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Channels {
+    names: Vec<String>,
+    /// Wavelength of each channel in nanometres, when the channels are spectral samples.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    wavelengths_nm: Option<Vec<f64>>,
+}
+
+impl Channels {
+    /// The conventional names for `n` channels: `Y` for one, `R G B` for three,
+    /// `c0 c1 ...` otherwise.
+    pub fn default_for(n: usize) -> Channels {
+        let names = match n {
+            1 => vec!["Y".to_string()],
+            3 => vec!["R".into(), "G".into(), "B".into()],
+            _ => (0..n).map(|i| format!("c{i}")).collect(),
+        };
+        Channels {
+            names,
+            wavelengths_nm: None,
+        }
+    }
+
+    /// Spectral channels named by wavelength (`550nm`).
+    pub fn spectral(wavelengths_nm: Vec<f64>) -> Channels {
+        let names = wavelengths_nm.iter().map(|w| format!("{w}nm")).collect();
+        Channels {
+            names,
+            wavelengths_nm: Some(wavelengths_nm),
+        }
+    }
+
+    /// Channels with explicit names; errors when names repeat or are empty.
+    pub fn named(names: Vec<String>, wavelengths_nm: Option<Vec<f64>>) -> crate::Result<Channels> {
+        if names.is_empty() {
+            return Err(crate::Error::input("a table needs at least one channel"));
+        }
+        for (i, n) in names.iter().enumerate() {
+            if n.is_empty() || names[..i].contains(n) {
+                return Err(crate::Error::input(format!(
+                    "channel name {n:?} is empty or repeated"
+                )));
+            }
+        }
+        if let Some(w) = &wavelengths_nm
+            && w.len() != names.len()
+        {
+            return Err(crate::Error::input(format!(
+                "{} wavelengths given for {} channels",
+                w.len(),
+                names.len()
+            )));
+        }
+        Ok(Channels {
+            names,
+            wavelengths_nm,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.names.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.names.is_empty()
+    }
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+    pub fn wavelengths_nm(&self) -> Option<&[f64]> {
+        self.wavelengths_nm.as_deref()
+    }
+}
+
+/// A BRDF f_r(wi, wo) in 1/sr without the cosine factor, in the local frame
+/// (z = normal), both directions pointing away from the surface.
+pub trait Brdf: Send + Sync {
+    /// The output channels; `eval` writes exactly `channels().len()` values.
+    fn channels(&self) -> &Channels;
+
+    /// Evaluates f_r for unit directions `wi`, `wo`, writing one value per channel into
+    /// `out`. Implementations return 0 in every channel when `wi.z <= 0` or `wo.z <= 0`
+    /// (one-sided; the horizon counts as below) and never write NaN or Inf for finite
+    /// unit inputs.
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]);
+
+    /// True when f depends on the azimuths only through their difference.
+    fn is_isotropic(&self) -> bool;
+
+    /// True when f(wi, wo) = f(wo, wi) is promised (measured data usually is not).
+    fn is_reciprocal(&self) -> bool {
+        true
+    }
+
+    /// A one-line description of the source for provenance and reports.
+    fn describe(&self) -> String;
+}

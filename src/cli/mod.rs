@@ -1,0 +1,68 @@
+//! The command-line interface: parses arguments into plain values, calls the library, maps
+//! errors to exit codes (0 ok, 1 a check failed or an operation failed, 2 bad input).
+
+use clap::{Parser, Subcommand};
+use std::io::Write;
+
+mod eval;
+
+/// brdfpack: turn BRDFs into compact tables and back.
+#[derive(Parser, Debug)]
+#[command(name = "brdfpack", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
+    Eval(eval::EvalArgs),
+}
+
+/// Runs the CLI and returns the process exit code.
+pub fn main() -> i32 {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            // clap prints help/version to stdout (exit 0) and usage errors to stderr (exit 2).
+            let _ = e.print();
+            return if e.use_stderr() { 2 } else { 0 };
+        }
+    };
+    let result = match cli.command {
+        Command::Eval(a) => eval::run(a),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => report_error(&e),
+    }
+}
+
+/// Prints `brdfpack: <message>` (with the chain of causes) and returns the exit code.
+/// A closed stdout (e.g. `| head`) is not an error.
+fn report_error(e: &anyhow::Error) -> i32 {
+    for cause in e.chain() {
+        if let Some(io) = cause.downcast_ref::<std::io::Error>()
+            && io.kind() == std::io::ErrorKind::BrokenPipe
+        {
+            return 0;
+        }
+    }
+    let code = e
+        .chain()
+        .find_map(|c| {
+            c.downcast_ref::<brdfpack_error::Error>()
+                .map(|e| e.exit_code())
+        })
+        .unwrap_or(1);
+    let mut stderr = std::io::stderr().lock();
+    let _ = write!(stderr, "brdfpack: {e}");
+    for cause in e.chain().skip(1) {
+        let _ = write!(stderr, ": {cause}");
+    }
+    let _ = writeln!(stderr);
+    code
+}
+
+use crate::error as brdfpack_error;

@@ -1,0 +1,18 @@
+//! brdfpack: turn BRDFs into compact tables and back.
+//!
+//! The pipeline: a [`brdf::Brdf`] source (an analytic [`model::Model`], a measured file or a
+//! stored table) is sampled on a [`grid::Grid`] into a [`table::Table`], encoded by a codec,
+//! written in one of the [`io`] formats, read back, evaluated anywhere by interpolation and
+//! checked against its source with the metrics of [`check`].
+
+pub mod brdf;
+pub mod cli;
+pub mod error;
+pub mod geometry;
+pub mod math;
+pub mod model;
+
+pub use error::{Error, Result};
+
+/// The tool's name and version, recorded in every file it writes.
+pub const TOOL_VERSION: &str = concat!("brdfpack ", env!("CARGO_PKG_VERSION"));
