@@ -7,10 +7,15 @@
 
 pub mod brdf;
 pub mod cli;
+pub mod codec;
 pub mod error;
 pub mod geometry;
+pub mod grid;
+pub mod io;
 pub mod math;
 pub mod model;
+pub mod table;
+pub mod tabulate;
 
 pub use error::{Error, Result};
 

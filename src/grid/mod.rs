@@ -1,0 +1,681 @@
+//! Parameterizations of the 4D space of direction pairs: grids that know their axes.
+//!
+//! A [`Grid`] is one of four kinds ([`GridKind`]); each has a fixed list of angular
+//! quantities ([`Quantity`]) in storage order (C order: the last axis is the fastest). Each axis
+//! has a resolution, a warp from index space to angle ([`Warp`]) and a sample placement
+//! ([`Placement`]). Storage order and conventions are documented in `docs/parameterizations.md`.
+
+mod spec;
+
+use crate::geometry::{HalfDiff, Vec3};
+use crate::math::{FRAC_PI_2, PI};
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+
+pub use spec::parse_grid_spec;
+
+/// The parameterization.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GridKind {
+    /// (θi, φi, θo, φo): regular spherical, any BRDF.
+    Spherical4,
+    /// (θi, θo, Δφ): isotropic BRDFs; Δφ = |φo − φi| folded into [0, π] (assumes the mirror
+    /// symmetry y → −y that isotropic, reciprocal BRDFs have).
+    Spherical3,
+    /// (θh, θd, φd): Rusinkiewicz (1998) for isotropic BRDFs; φd folded into [0, π) by
+    /// reciprocity, as in MERL.
+    Halfdiff3,
+    /// (θh, φh, θd, φd): Rusinkiewicz for anisotropic BRDFs, φd over the full circle.
+    Halfdiff4,
+}
+
+impl GridKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            GridKind::Spherical4 => "spherical4",
+            GridKind::Spherical3 => "spherical3",
+            GridKind::Halfdiff3 => "halfdiff3",
+            GridKind::Halfdiff4 => "halfdiff4",
+        }
+    }
+
+    /// The axis quantities in storage order (last fastest).
+    pub fn quantities(self) -> &'static [Quantity] {
+        use Quantity::*;
+        match self {
+            GridKind::Spherical4 => &[ThetaI, PhiI, ThetaO, PhiO],
+            GridKind::Spherical3 => &[ThetaI, ThetaO, DeltaPhi],
+            GridKind::Halfdiff3 => &[ThetaH, ThetaD, PhiD],
+            GridKind::Halfdiff4 => &[ThetaH, PhiH, ThetaD, PhiD],
+        }
+    }
+
+    /// True when the kind can only represent isotropic BRDFs.
+    pub fn is_isotropic(self) -> bool {
+        matches!(self, GridKind::Spherical3 | GridKind::Halfdiff3)
+    }
+
+    /// Angular range [lo, hi] of a quantity on this kind of grid and whether it is periodic.
+    fn range(self, q: Quantity) -> (f64, f64, bool) {
+        use Quantity::*;
+        match q {
+            ThetaI | ThetaO | ThetaH | ThetaD => (0.0, FRAC_PI_2, false),
+            PhiI | PhiO | PhiH => (0.0, 2.0 * PI, true),
+            // Mirror-symmetric about 0 and π: clamping at the ends is the reflection.
+            DeltaPhi => (0.0, PI, false),
+            // Reciprocity maps φd to φd + π, so the folded axis is periodic with period π.
+            PhiD if self == GridKind::Halfdiff3 => (0.0, PI, true),
+            PhiD => (0.0, 2.0 * PI, true),
+        }
+    }
+}
+
+/// An angular quantity that a grid axis samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Quantity {
+    ThetaI,
+    PhiI,
+    ThetaO,
+    PhiO,
+    DeltaPhi,
+    ThetaH,
+    PhiH,
+    ThetaD,
+    PhiD,
+}
+
+impl Quantity {
+    pub fn name(self) -> &'static str {
+        match self {
+            Quantity::ThetaI => "theta_i",
+            Quantity::PhiI => "phi_i",
+            Quantity::ThetaO => "theta_o",
+            Quantity::PhiO => "phi_o",
+            Quantity::DeltaPhi => "delta_phi",
+            Quantity::ThetaH => "theta_h",
+            Quantity::PhiH => "phi_h",
+            Quantity::ThetaD => "theta_d",
+            Quantity::PhiD => "phi_d",
+        }
+    }
+    fn is_theta(self) -> bool {
+        matches!(
+            self,
+            Quantity::ThetaI | Quantity::ThetaO | Quantity::ThetaH | Quantity::ThetaD
+        )
+    }
+}
+
+/// The map from normalized index space u ∈ [0, 1] to the axis range.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Warp {
+    /// angle = lo + (hi − lo) u.
+    Linear,
+    /// angle = lo + (hi − lo) u², i.e. index ∝ sqrt(angle): dense near 0, as MERL's θh
+    /// (Matusik et al. 2003) where specular peaks live.
+    Sqrt,
+}
+
+impl Warp {
+    #[inline]
+    fn forward(self, u: f64) -> f64 {
+        match self {
+            Warp::Linear => u,
+            Warp::Sqrt => u * u,
+        }
+    }
+    #[inline]
+    fn inverse(self, t: f64) -> f64 {
+        match self {
+            Warp::Linear => t,
+            Warp::Sqrt => t.max(0.0).sqrt(),
+        }
+    }
+    /// d(angle fraction)/du at u.
+    #[inline]
+    fn derivative(self, u: f64) -> f64 {
+        match self {
+            Warp::Linear => 1.0,
+            Warp::Sqrt => 2.0 * u,
+        }
+    }
+}
+
+/// Where in its index-space cell each sample sits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Placement {
+    /// u = (i + ½)/n: cell centres (no sample on a boundary; the default).
+    Center,
+    /// u = i/n: lower cell edges, MERL's convention (θh = (i/90)² π/2 ...).
+    LowerEdge,
+}
+
+impl Placement {
+    #[inline]
+    fn offset(self) -> f64 {
+        match self {
+            Placement::Center => 0.5,
+            Placement::LowerEdge => 0.0,
+        }
+    }
+}
+
+/// One axis of a grid.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Axis {
+    pub quantity: Quantity,
+    pub n: usize,
+    pub warp: Warp,
+    pub placement: Placement,
+    /// Angular range in radians (derived from kind, quantity and the grid's θ limit).
+    #[serde(skip)]
+    lo: f64,
+    #[serde(skip)]
+    hi: f64,
+    #[serde(skip)]
+    periodic: bool,
+}
+
+impl Axis {
+    /// The angle of sample `i` (radians).
+    #[inline]
+    pub fn sample(&self, i: usize) -> f64 {
+        let u = (i as f64 + self.placement.offset()) / self.n as f64;
+        self.lo + (self.hi - self.lo) * self.warp.forward(u)
+    }
+
+    /// The continuous index of angle `x`: `sample(i) == x` ⇔ result = i.
+    #[inline]
+    pub fn continuous_index(&self, x: f64) -> f64 {
+        let t = (x - self.lo) / (self.hi - self.lo);
+        self.warp.inverse(t) * self.n as f64 - self.placement.offset()
+    }
+
+    pub fn range(&self) -> (f64, f64) {
+        (self.lo, self.hi)
+    }
+    pub fn is_periodic(&self) -> bool {
+        self.periodic
+    }
+
+    /// Width in radians of the cell of sample `i` (for measure weights).
+    fn cell_width(&self, i: usize) -> f64 {
+        let u = (i as f64 + 0.5) / self.n as f64;
+        (self.hi - self.lo) * self.warp.derivative(u) / self.n as f64
+    }
+}
+
+/// Largest number of cells a grid may have (keeps a hostile header from asking for
+/// terabytes; 2^31 cells of RGB f32 is already 24 GiB).
+pub const MAX_CELLS: usize = 1 << 31;
+/// Largest resolution of one axis.
+pub const MAX_AXIS_RESOLUTION: usize = 1 << 16;
+
+/// A parameterization of direction pairs with a resolution, warp and placement per axis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Grid {
+    kind: GridKind,
+    axes: Vec<Axis>,
+    /// Domain limit: cells (and queries) with θi or θo above it are outside the table.
+    theta_max: Option<f64>,
+}
+
+/// Serialized form of a grid (what headers store): validated on the way in.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct GridDesc {
+    pub kind: GridKind,
+    pub axes: Vec<AxisDesc>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub theta_max_deg: Option<f64>,
+}
+
+/// Serialized form of an axis.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct AxisDesc {
+    pub quantity: Quantity,
+    pub n: usize,
+    pub warp: Warp,
+    pub placement: Placement,
+}
+
+impl Grid {
+    /// Builds a grid; `axes` are (n, warp, placement) in the kind's storage order.
+    pub fn new(
+        kind: GridKind,
+        axes: &[(usize, Warp, Placement)],
+        theta_max_deg: Option<f64>,
+    ) -> Result<Grid> {
+        let qs = kind.quantities();
+        if axes.len() != qs.len() {
+            return Err(Error::input(format!(
+                "grid {}: {} axes given, expected {} ({})",
+                kind.name(),
+                axes.len(),
+                qs.len(),
+                qs.iter().map(|q| q.name()).collect::<Vec<_>>().join(", ")
+            )));
+        }
+        let theta_max = match theta_max_deg {
+            None => None,
+            Some(d) if d.is_finite() && d > 0.0 && d <= 90.0 => {
+                if d == 90.0 {
+                    None
+                } else {
+                    Some(d.to_radians())
+                }
+            }
+            Some(d) => {
+                return Err(Error::input(format!(
+                    "grid: theta-max = {d} is out of range (0, 90] degrees"
+                )));
+            }
+        };
+        let mut out = Vec::with_capacity(qs.len());
+        let mut cells: usize = 1;
+        for (&q, &(n, warp, placement)) in qs.iter().zip(axes) {
+            if n == 0 || n > MAX_AXIS_RESOLUTION {
+                return Err(Error::input(format!(
+                    "grid {}: axis {} resolution {n} is out of range [1, {MAX_AXIS_RESOLUTION}]",
+                    kind.name(),
+                    q.name()
+                )));
+            }
+            cells = cells.saturating_mul(n);
+            let (lo, mut hi, periodic) = kind.range(q);
+            if periodic && warp != Warp::Linear {
+                return Err(Error::input(format!(
+                    "grid {}: axis {} is periodic and needs warp linear (got {:?})",
+                    kind.name(),
+                    q.name(),
+                    warp
+                )));
+            }
+            // Spherical grids spend their θ samples on the stored domain only.
+            if let (Some(tm), true) = (theta_max, matches!(q, Quantity::ThetaI | Quantity::ThetaO))
+            {
+                hi = tm;
+            }
+            out.push(Axis {
+                quantity: q,
+                n,
+                warp,
+                placement,
+                lo,
+                hi,
+                periodic,
+            });
+        }
+        if cells > MAX_CELLS {
+            return Err(Error::input(format!(
+                "grid {}: {cells} cells exceed the limit of {MAX_CELLS}",
+                kind.name()
+            )));
+        }
+        Ok(Grid {
+            kind,
+            axes: out,
+            theta_max,
+        })
+    }
+
+    /// MERL's grid (Matusik et al. 2003): halfdiff3 90×90×180, sqrt θh, lower edges.
+    pub fn merl() -> Grid {
+        Grid::new(
+            GridKind::Halfdiff3,
+            &[
+                (90, Warp::Sqrt, Placement::LowerEdge),
+                (90, Warp::Linear, Placement::LowerEdge),
+                (180, Warp::Linear, Placement::LowerEdge),
+            ],
+            None,
+        )
+        .expect("the MERL grid is valid")
+    }
+
+    pub fn from_desc(d: &GridDesc) -> Result<Grid> {
+        let qs = d.kind.quantities();
+        if d.axes.len() != qs.len() || d.axes.iter().zip(qs).any(|(a, q)| a.quantity != *q) {
+            return Err(Error::input(format!(
+                "grid {}: axes must be {}",
+                d.kind.name(),
+                qs.iter().map(|q| q.name()).collect::<Vec<_>>().join(", ")
+            )));
+        }
+        let axes: Vec<_> = d.axes.iter().map(|a| (a.n, a.warp, a.placement)).collect();
+        Grid::new(d.kind, &axes, d.theta_max_deg)
+    }
+
+    pub fn desc(&self) -> GridDesc {
+        GridDesc {
+            kind: self.kind,
+            axes: self
+                .axes
+                .iter()
+                .map(|a| AxisDesc {
+                    quantity: a.quantity,
+                    n: a.n,
+                    warp: a.warp,
+                    placement: a.placement,
+                })
+                .collect(),
+            theta_max_deg: self.theta_max.map(f64::to_degrees),
+        }
+    }
+
+    pub fn kind(&self) -> GridKind {
+        self.kind
+    }
+    pub fn axes(&self) -> &[Axis] {
+        &self.axes
+    }
+    pub fn theta_max(&self) -> Option<f64> {
+        self.theta_max
+    }
+    pub fn shape(&self) -> Vec<usize> {
+        self.axes.iter().map(|a| a.n).collect()
+    }
+    pub fn cells(&self) -> usize {
+        self.axes.iter().map(|a| a.n).product()
+    }
+
+    /// A compact human description, e.g. `halfdiff3 90x90x180 (sqrt,linear,linear; lower_edge)`.
+    pub fn describe(&self) -> String {
+        let dims: Vec<String> = self.axes.iter().map(|a| a.n.to_string()).collect();
+        let warps: Vec<String> = self
+            .axes
+            .iter()
+            .map(|a| format!("{:?}", a.warp).to_lowercase())
+            .collect();
+        let placements: Vec<&str> = self
+            .axes
+            .iter()
+            .map(|a| match a.placement {
+                Placement::Center => "center",
+                Placement::LowerEdge => "edge",
+            })
+            .collect();
+        let mut s = format!(
+            "{} {} (warp {}; at {})",
+            self.kind.name(),
+            dims.join("x"),
+            warps.join("/"),
+            placements.join("/")
+        );
+        if let Some(t) = self.theta_max {
+            s.push_str(&format!("; theta-max {}°", t.to_degrees()));
+        }
+        s
+    }
+
+    /// Multi-index of flat cell `flat` (C order).
+    pub fn unflatten(&self, mut flat: usize, idx: &mut [usize]) {
+        for (k, a) in self.axes.iter().enumerate().rev() {
+            idx[k] = flat % a.n;
+            flat /= a.n;
+        }
+    }
+
+    /// The axis angles of a cell's sample.
+    pub fn sample_coords(&self, idx: &[usize]) -> [f64; 4] {
+        let mut c = [0.0; 4];
+        for (k, a) in self.axes.iter().enumerate() {
+            c[k] = a.sample(idx[k]);
+        }
+        c
+    }
+
+    /// The direction pair at axis angles `c` (in storage order).
+    pub fn dirs_from_coords(&self, c: &[f64; 4]) -> (Vec3, Vec3) {
+        match self.kind {
+            GridKind::Spherical4 => (
+                Vec3::from_spherical(c[0], c[1]),
+                Vec3::from_spherical(c[2], c[3]),
+            ),
+            GridKind::Spherical3 => (
+                Vec3::from_spherical(c[0], 0.0),
+                Vec3::from_spherical(c[1], c[2]),
+            ),
+            GridKind::Halfdiff3 => HalfDiff {
+                theta_h: c[0],
+                phi_h: 0.0,
+                theta_d: c[1],
+                phi_d: c[2],
+            }
+            .to_dirs(),
+            GridKind::Halfdiff4 => HalfDiff {
+                theta_h: c[0],
+                phi_h: c[1],
+                theta_d: c[2],
+                phi_d: c[3],
+            }
+            .to_dirs(),
+        }
+    }
+
+    /// The direction pair sampled by a cell.
+    pub fn cell_dirs(&self, idx: &[usize]) -> (Vec3, Vec3) {
+        self.dirs_from_coords(&self.sample_coords(idx))
+    }
+
+    /// The axis angles of a direction pair (storage order), folded into the grid's ranges.
+    /// `None` when the pair has no coordinates here (wi = −wo on a half/difference grid).
+    pub fn coords_of(&self, wi: Vec3, wo: Vec3) -> Option<[f64; 4]> {
+        let wrap = |a: f64| if a < 0.0 { a + 2.0 * PI } else { a };
+        match self.kind {
+            GridKind::Spherical4 => Some([wi.theta(), wrap(wi.phi()), wo.theta(), wrap(wo.phi())]),
+            GridKind::Spherical3 => {
+                let mut d = (wo.phi() - wi.phi()).abs();
+                if d > PI {
+                    d = 2.0 * PI - d;
+                }
+                Some([wi.theta(), wo.theta(), d, 0.0])
+            }
+            GridKind::Halfdiff3 => {
+                let hd = HalfDiff::from_dirs(wi, wo)?;
+                // MERL's fold: φd and φd + π are the same pair with wi and wo swapped.
+                let pd = if hd.phi_d < 0.0 {
+                    hd.phi_d + PI
+                } else {
+                    hd.phi_d
+                };
+                Some([hd.theta_h, hd.theta_d, pd, 0.0])
+            }
+            GridKind::Halfdiff4 => {
+                let hd = HalfDiff::from_dirs(wi, wo)?;
+                Some([hd.theta_h, wrap(hd.phi_h), hd.theta_d, wrap(hd.phi_d)])
+            }
+        }
+    }
+
+    /// True when a direction pair lies in the stored domain (above the horizon, within θmax).
+    #[inline]
+    pub fn in_domain(&self, wi: Vec3, wo: Vec3) -> bool {
+        if !(wi.z > 0.0 && wo.z > 0.0) {
+            return false;
+        }
+        match self.theta_max {
+            None => true,
+            // Compare cosines: θ ≤ θmax ⇔ cos θ ≥ cos θmax (with a little slack for rounding).
+            Some(t) => {
+                let c = t.cos() - 1e-12;
+                wi.z >= c && wo.z >= c
+            }
+        }
+    }
+
+    /// Solid-angle measure dωi dωo of a cell (used to weight the `cells` sample set):
+    /// sinθi sinθo dθi dφi dθo dφo on spherical grids (Δφ counted twice, for ±Δφ);
+    /// 4 cosθd sinθh sinθd dθh dφh dθd dφd on half/difference grids (Rusinkiewicz 1998),
+    /// with the integral over the missing azimuth (2π) and the φd fold (×2) on 3D kinds.
+    pub fn cell_measure(&self, idx: &[usize]) -> f64 {
+        let c = self.sample_coords(idx);
+        let w: f64 = self
+            .axes
+            .iter()
+            .zip(idx)
+            .map(|(a, &i)| a.cell_width(i))
+            .product();
+        let s = |t: f64| t.sin().abs();
+        match self.kind {
+            GridKind::Spherical4 => w * s(c[0]) * s(c[2]),
+            GridKind::Spherical3 => w * s(c[0]) * s(c[1]) * 2.0 * PI * 2.0,
+            GridKind::Halfdiff3 => 4.0 * c[1].cos() * s(c[0]) * s(c[1]) * w * 2.0 * PI * 2.0,
+            GridKind::Halfdiff4 => 4.0 * c[2].cos() * s(c[0]) * s(c[2]) * w,
+        }
+    }
+
+    /// Validity of every cell implied by geometry alone: the sample pair is above the horizon
+    /// and inside θmax.
+    pub fn geometric_mask(&self) -> Vec<bool> {
+        let mut idx = [0usize; 4];
+        (0..self.cells())
+            .map(|f| {
+                self.unflatten(f, &mut idx[..self.axes.len()]);
+                let (wi, wo) = self.cell_dirs(&idx[..self.axes.len()]);
+                self.in_domain(wi, wo)
+            })
+            .collect()
+    }
+
+    /// True for θ axes (used by interpolation to clamp rather than wrap).
+    pub fn axis_is_theta(&self, k: usize) -> bool {
+        self.axes[k].quantity.is_theta()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn merl_sample_positions_match_the_reference() {
+        let g = Grid::merl();
+        let th = &g.axes()[0];
+        assert_eq!(th.sample(0), 0.0);
+        let i = 45.0_f64;
+        assert!((th.sample(45) - (i / 90.0).powi(2) * FRAC_PI_2).abs() < 1e-15);
+        assert!((g.axes()[1].sample(1) - PI / 180.0).abs() < 1e-15);
+        assert!((g.axes()[2].sample(179) - 179.0 * PI / 180.0).abs() < 1e-14);
+        assert_eq!(g.cells(), 1_458_000);
+    }
+
+    #[test]
+    fn continuous_index_inverts_sample() {
+        for g in [
+            Grid::merl(),
+            parse_grid_spec("spherical4:8x16x8x16").unwrap(),
+            parse_grid_spec("halfdiff4:8x16x8x16,warp=sqrt/linear/linear/linear").unwrap(),
+        ] {
+            for a in g.axes() {
+                for i in 0..a.n {
+                    let t = a.continuous_index(a.sample(i));
+                    assert!((t - i as f64).abs() < 1e-9, "{:?} {i} {t}", a.quantity);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn cell_directions_round_trip_through_coords() {
+        for spec in [
+            "halfdiff3:16x16x32",
+            "halfdiff4:8x16x8x16",
+            "spherical4:8x16x8x16",
+            "spherical3:8x8x16",
+        ] {
+            let g = parse_grid_spec(spec).unwrap();
+            let mut idx = [0usize; 4];
+            let d = g.axes().len();
+            for f in 0..g.cells() {
+                g.unflatten(f, &mut idx[..d]);
+                let (wi, wo) = g.cell_dirs(&idx[..d]);
+                if !g.in_domain(wi, wo) {
+                    continue;
+                }
+                let c = g.coords_of(wi, wo).unwrap();
+                let s = g.sample_coords(&idx[..d]);
+                for k in 0..d {
+                    let (lo, hi) = g.axes()[k].range();
+                    let mut diff = (c[k] - s[k]).abs();
+                    if g.axes()[k].is_periodic() {
+                        diff = diff.min((hi - lo) - diff);
+                    }
+                    assert!(
+                        diff < 1e-9,
+                        "{spec} cell {f} axis {k}: {} vs {}",
+                        c[k],
+                        s[k]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn measure_sums_to_the_domain() {
+        // ∫∫ dωi dωo over both hemispheres = (2π)².
+        for spec in [
+            "spherical4:32x32x32x32",
+            "spherical3:64x64x64",
+            "halfdiff3:128x128x64",
+            "halfdiff4:48x32x48x32",
+        ] {
+            let g = parse_grid_spec(spec).unwrap();
+            let d = g.axes().len();
+            let mut idx = [0usize; 4];
+            let mut total = 0.0;
+            for f in 0..g.cells() {
+                g.unflatten(f, &mut idx[..d]);
+                let (wi, wo) = g.cell_dirs(&idx[..d]);
+                if g.in_domain(wi, wo) {
+                    total += g.cell_measure(&idx[..d]);
+                }
+            }
+            let want = (2.0 * PI).powi(2);
+            assert!(
+                (total / want - 1.0).abs() < 0.02,
+                "{spec}: {total} vs {want}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_grids_are_refused() {
+        assert!(
+            Grid::new(
+                GridKind::Halfdiff3,
+                &[(0, Warp::Linear, Placement::Center); 3],
+                None
+            )
+            .is_err()
+        );
+        assert!(
+            Grid::new(
+                GridKind::Halfdiff3,
+                &[(4, Warp::Linear, Placement::Center); 2],
+                None
+            )
+            .is_err()
+        );
+        assert!(
+            Grid::new(
+                GridKind::Halfdiff3,
+                &[(4, Warp::Sqrt, Placement::Center); 3],
+                None
+            )
+            .is_err()
+        );
+        assert!(
+            Grid::new(
+                GridKind::Spherical4,
+                &[(65536, Warp::Linear, Placement::Center); 4],
+                None
+            )
+            .is_err()
+        );
+    }
+}

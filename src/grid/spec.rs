@@ -1,0 +1,140 @@
+//! The grid spec grammar of the CLI (documented in docs/parameterizations.md):
+//!
+//! ```text
+//! merl
+//! KIND:DIMS[,warp=W[/W...]][,at=center|edge[/...]][,theta-max=DEG]
+//! KIND  = spherical4 | spherical3 | halfdiff3 | halfdiff4
+//! DIMS  = N | NxNx...            (one N applies to every axis)
+//! W     = linear | sqrt          (one value applies to every axis)
+//! ```
+
+use super::{Grid, GridKind, Placement, Warp};
+use crate::{Error, Result};
+
+/// Parses a grid spec such as `merl` or `halfdiff4:64,warp=sqrt/linear/linear/linear`.
+pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
+    let spec = spec.trim();
+    if spec == "merl" {
+        return Ok(Grid::merl());
+    }
+    let (kind_s, rest) = spec.split_once(':').ok_or_else(|| {
+        Error::input(format!(
+            "grid {spec:?}: expected `merl` or KIND:DIMS (e.g. halfdiff3:90x90x180), KIND one of spherical4, spherical3, halfdiff3, halfdiff4"
+        ))
+    })?;
+    let kind = match kind_s {
+        "spherical4" => GridKind::Spherical4,
+        "spherical3" => GridKind::Spherical3,
+        "halfdiff3" => GridKind::Halfdiff3,
+        "halfdiff4" => GridKind::Halfdiff4,
+        _ => {
+            return Err(Error::input(format!(
+                "grid {spec:?}: unknown kind {kind_s:?} (expected spherical4, spherical3, halfdiff3, halfdiff4 or merl)"
+            )));
+        }
+    };
+    let d = kind.quantities().len();
+    let mut parts = rest.split(',');
+    let dims_s = parts.next().unwrap_or("");
+    let dims: Vec<usize> = broadcast(dims_s, 'x', d, "resolution", spec)?
+        .iter()
+        .map(|s| {
+            s.parse::<usize>().map_err(|_| {
+                Error::input(format!(
+                    "grid {spec:?}: resolution {s:?} is not a positive whole number"
+                ))
+            })
+        })
+        .collect::<Result<_>>()?;
+    let mut warps = vec![Warp::Linear; d];
+    let mut placements = vec![Placement::Center; d];
+    let mut theta_max = None;
+    for opt in parts {
+        let (k, v) = opt.split_once('=').ok_or_else(|| {
+            Error::input(format!("grid {spec:?}: option {opt:?} is not key=value"))
+        })?;
+        match k {
+            "warp" => {
+                warps = broadcast(v, '/', d, "warp", spec)?
+                    .iter()
+                    .map(|w| match *w {
+                        "linear" => Ok(Warp::Linear),
+                        "sqrt" => Ok(Warp::Sqrt),
+                        _ => Err(Error::input(format!(
+                            "grid {spec:?}: warp {w:?} is not linear or sqrt"
+                        ))),
+                    })
+                    .collect::<Result<_>>()?
+            }
+            "at" => {
+                placements = broadcast(v, '/', d, "at", spec)?
+                    .iter()
+                    .map(|w| match *w {
+                        "center" | "centre" => Ok(Placement::Center),
+                        "edge" | "lower-edge" => Ok(Placement::LowerEdge),
+                        _ => Err(Error::input(format!(
+                            "grid {spec:?}: at={w:?} is not center or edge"
+                        ))),
+                    })
+                    .collect::<Result<_>>()?
+            }
+            "theta-max" => {
+                theta_max = Some(v.parse::<f64>().map_err(|_| {
+                    Error::input(format!(
+                        "grid {spec:?}: theta-max {v:?} is not a number of degrees"
+                    ))
+                })?)
+            }
+            _ => {
+                return Err(Error::input(format!(
+                    "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max)"
+                )));
+            }
+        }
+    }
+    let axes: Vec<_> = (0..d).map(|k| (dims[k], warps[k], placements[k])).collect();
+    Grid::new(kind, &axes, theta_max)
+}
+
+/// Splits `s` on `sep` and broadcasts a single value to `d` axes.
+fn broadcast<'a>(s: &'a str, sep: char, d: usize, what: &str, spec: &str) -> Result<Vec<&'a str>> {
+    let v: Vec<&str> = s.split(sep).collect();
+    match v.len() {
+        1 => Ok(vec![v[0]; d]),
+        n if n == d => Ok(v),
+        n => Err(Error::input(format!(
+            "grid {spec:?}: {n} {what} values given, expected 1 or {d}"
+        ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_the_documented_forms() {
+        let g = parse_grid_spec("halfdiff3:90x90x180,warp=sqrt/linear/linear,at=edge").unwrap();
+        assert_eq!(g, Grid::merl());
+        let g = parse_grid_spec("halfdiff4:32").unwrap();
+        assert_eq!(g.shape(), vec![32; 4]);
+        let g = parse_grid_spec("spherical4:8x16x8x16,theta-max=80").unwrap();
+        assert!((g.theta_max().unwrap() - 80f64.to_radians()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn errors_name_the_problem() {
+        for (spec, needle) in [
+            ("cube:4", "unknown kind"),
+            ("halfdiff3:4x4", "2 resolution values"),
+            ("halfdiff3:4xAx4", "\"A\""),
+            ("halfdiff3:4,warp=log", "\"log\""),
+            ("halfdiff3:4,theta-max=100", "theta-max = 100"),
+            ("halfdiff3:4,foo=1", "unknown option"),
+            ("halfdiff3", "expected `merl`"),
+        ] {
+            let e = parse_grid_spec(spec).unwrap_err().to_string();
+            assert!(e.contains(needle), "{spec}: {e}");
+        }
+    }
+}

@@ -1,0 +1,4 @@
+//! File formats and output handling.
+
+pub mod atomic;
+pub mod native;

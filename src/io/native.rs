@@ -1,0 +1,363 @@
+//! The native table format (`.bpk`), specified byte for byte in docs/format.md.
+//!
+//! ```text
+//! magic    8 bytes   89 42 50 4B 0D 0A 1A 0A   ("\x89BPK\r\n\x1a\n")
+//! version  u16 LE major (1), u16 LE minor (0)
+//! count    u32 LE number of sections (2..=16)
+//! crc32    u32 LE (IEEE) of the 16 bytes above, so no byte of the file is unchecked
+//! sections count × { tag: 4 ASCII bytes, length: u64 LE, crc32: u32 LE (IEEE, of the payload),
+//!                    payload: length bytes }
+//! ```
+//! Sections in order: `HEAD` (UTF-8 JSON header), `DATA` (codec payload), optionally `MASK`
+//! (zstd of the validity bitmap, LSB first, when it differs from the grid's geometric mask),
+//! and `END ` (empty) last, so a file cut at a section boundary is still detected.
+
+use crate::brdf::Channels;
+use crate::codec::CodecSpec;
+use crate::grid::{Grid, GridDesc};
+use crate::table::{Provenance, Table};
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+pub const MAGIC: [u8; 8] = *b"\x89BPK\r\n\x1a\n";
+pub const VERSION_MAJOR: u16 = 1;
+pub const VERSION_MINOR: u16 = 0;
+/// Largest header accepted (a real one is a few KB).
+const MAX_HEADER: u64 = 16 << 20;
+const MAX_SECTIONS: u32 = 16;
+/// Magic, version, section count and their checksum.
+const PREAMBLE: usize = 20;
+/// Most channels a table may have.
+pub const MAX_CHANNELS: usize = 4096;
+
+/// The JSON header: everything needed to decode with no flags.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Header {
+    /// Always `brdfpack-table`.
+    pub format: String,
+    pub grid: GridDesc,
+    pub channels: Channels,
+    pub provenance: Provenance,
+    pub codec: CodecSpec,
+    /// `geometric`: validity is implied by the grid (above the horizon, within θmax);
+    /// `explicit`: a `MASK` section holds it.
+    pub mask: MaskKind,
+    /// Number of valid cells (a consistency check).
+    pub valid_cells: usize,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MaskKind {
+    Geometric,
+    Explicit,
+}
+
+/// Encodes a table into the native format's bytes.
+pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
+    let geometric = table.grid().geometric_mask();
+    let mask = if geometric == table.valid() {
+        MaskKind::Geometric
+    } else {
+        MaskKind::Explicit
+    };
+    let header = Header {
+        format: "brdfpack-table".into(),
+        grid: table.grid().desc(),
+        channels: table.channels().clone(),
+        provenance: table.provenance().clone(),
+        codec: codec.clone(),
+        mask,
+        valid_cells: table.valid_count(),
+    };
+    let head = serde_json::to_vec_pretty(&header)
+        .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
+    let data = codec.encode(table)?;
+    let mut sections: Vec<([u8; 4], Vec<u8>)> = vec![(*b"HEAD", head), (*b"DATA", data)];
+    if mask == MaskKind::Explicit {
+        let mut bits = vec![0u8; table.valid().len().div_ceil(8)];
+        for (i, &v) in table.valid().iter().enumerate() {
+            if v {
+                bits[i / 8] |= 1 << (i % 8);
+            }
+        }
+        let z = zstd::bulk::compress(&bits, 19)
+            .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
+        sections.push((*b"MASK", z));
+    }
+    sections.push((*b"END ", Vec::new()));
+    let mut out = Vec::new();
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&VERSION_MAJOR.to_le_bytes());
+    out.extend_from_slice(&VERSION_MINOR.to_le_bytes());
+    out.extend_from_slice(&(sections.len() as u32).to_le_bytes());
+    let pre = crc32fast::hash(&out);
+    out.extend_from_slice(&pre.to_le_bytes());
+    for (tag, payload) in &sections {
+        out.extend_from_slice(tag);
+        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        out.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
+        out.extend_from_slice(payload);
+    }
+    Ok(out)
+}
+
+/// True when `bytes` start with the native magic.
+pub fn is_native(bytes: &[u8]) -> bool {
+    bytes.starts_with(&MAGIC)
+}
+
+/// Reads the sections of a native file, checking magic, version, lengths and checksums.
+fn sections<'a>(bytes: &'a [u8], path: &Path) -> Result<Vec<([u8; 4], &'a [u8])>> {
+    let bad = |m: String| Error::invalid_file(path, m);
+    if bytes.len() < PREAMBLE {
+        return Err(bad(format!(
+            "{} bytes is too short for a brdfpack table (truncated?)",
+            bytes.len()
+        )));
+    }
+    if !is_native(bytes) {
+        return Err(bad("not a brdfpack table (wrong magic)".into()));
+    }
+    let major = u16::from_le_bytes([bytes[8], bytes[9]]);
+    let minor = u16::from_le_bytes([bytes[10], bytes[11]]);
+    if major != VERSION_MAJOR {
+        return Err(bad(format!(
+            "format version {major}.{minor} is not supported (this build reads {VERSION_MAJOR}.x)"
+        )));
+    }
+    let pre = u32::from_le_bytes([bytes[16], bytes[17], bytes[18], bytes[19]]);
+    if crc32fast::hash(&bytes[..16]) != pre {
+        return Err(bad(
+            "preamble checksum mismatch (the file is corrupt)".into()
+        ));
+    }
+    let count = u32::from_le_bytes([bytes[12], bytes[13], bytes[14], bytes[15]]);
+    if !(2..=MAX_SECTIONS).contains(&count) {
+        return Err(bad(format!(
+            "section count {count} is out of range [2, {MAX_SECTIONS}]"
+        )));
+    }
+    let mut pos = PREAMBLE;
+    let mut out = Vec::with_capacity(count as usize);
+    for s in 0..count {
+        if bytes.len() - pos < 16 {
+            return Err(bad(format!(
+                "truncated: section {s} header at byte {pos} runs past the end ({} bytes)",
+                bytes.len()
+            )));
+        }
+        let tag: [u8; 4] = bytes[pos..pos + 4].try_into().expect("4 bytes");
+        let len = u64::from_le_bytes(bytes[pos + 4..pos + 12].try_into().expect("8 bytes"));
+        let crc = u32::from_le_bytes(bytes[pos + 12..pos + 16].try_into().expect("4 bytes"));
+        pos += 16;
+        let tag_s = String::from_utf8_lossy(&tag).into_owned();
+        if len > (bytes.len() - pos) as u64 {
+            return Err(bad(format!(
+                "truncated: section {tag_s:?} declares {len} bytes but {} remain",
+                bytes.len() - pos
+            )));
+        }
+        let payload = &bytes[pos..pos + len as usize];
+        pos += len as usize;
+        if crc32fast::hash(payload) != crc {
+            return Err(bad(format!(
+                "section {tag_s:?}: checksum mismatch (the file is corrupt)"
+            )));
+        }
+        out.push((tag, payload));
+    }
+    if pos != bytes.len() {
+        return Err(bad(format!(
+            "{} unexpected bytes after the last section",
+            bytes.len() - pos
+        )));
+    }
+    let tags: Vec<[u8; 4]> = out.iter().map(|(t, _)| *t).collect();
+    let ok = tags.first() == Some(b"HEAD")
+        && tags.get(1) == Some(b"DATA")
+        && tags.last() == Some(b"END ")
+        && (tags.len() == 3 || (tags.len() == 4 && &tags[2] == b"MASK"));
+    if !ok {
+        let names: Vec<String> = tags
+            .iter()
+            .map(|t| String::from_utf8_lossy(t).into_owned())
+            .collect();
+        return Err(bad(format!(
+            "sections {names:?}: expected HEAD, DATA, [MASK,] END"
+        )));
+    }
+    Ok(out)
+}
+
+/// Parses only the header (for `inspect`).
+pub fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
+    let secs = sections(bytes, path)?;
+    parse_header(secs[0].1, path)
+}
+
+fn parse_header(head: &[u8], path: &Path) -> Result<Header> {
+    if head.len() as u64 > MAX_HEADER {
+        return Err(Error::invalid_file(path, "header larger than 16 MiB"));
+    }
+    let h: Header = serde_json::from_slice(head)
+        .map_err(|e| Error::invalid_file(path, format!("header JSON: {e}")))?;
+    if h.format != "brdfpack-table" {
+        return Err(Error::invalid_file(
+            path,
+            format!(
+                "header field `format` = {:?}, expected \"brdfpack-table\"",
+                h.format
+            ),
+        ));
+    }
+    Ok(h)
+}
+
+/// Decodes a native file.
+pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
+    let secs = sections(bytes, path)?;
+    let h = parse_header(secs[0].1, path)?;
+    let in_file = |e: Error| Error::invalid_file(path, e.to_string());
+    let grid = Grid::from_desc(&h.grid).map_err(in_file)?;
+    let channels = Channels::named(
+        h.channels.names().to_vec(),
+        h.channels.wavelengths_nm().map(|w| w.to_vec()),
+    )
+    .map_err(in_file)?;
+    if channels.len() > MAX_CHANNELS {
+        return Err(Error::invalid_file(
+            path,
+            format!(
+                "{} channels exceed the limit {MAX_CHANNELS}",
+                channels.len()
+            ),
+        ));
+    }
+    let cells = grid.cells();
+    let valid = match h.mask {
+        MaskKind::Geometric => grid.geometric_mask(),
+        MaskKind::Explicit => {
+            let z = secs
+                .iter()
+                .find(|(t, _)| t == b"MASK")
+                .ok_or_else(|| {
+                    Error::invalid_file(
+                        path,
+                        "header says mask explicit but there is no MASK section",
+                    )
+                })?
+                .1;
+            let bits = zstd::bulk::decompress(z, cells.div_ceil(8))
+                .map_err(|e| Error::invalid_file(path, format!("MASK section: {e}")))?;
+            if bits.len() != cells.div_ceil(8) {
+                return Err(Error::invalid_file(
+                    path,
+                    format!(
+                        "MASK section holds {} bytes, expected {}",
+                        bits.len(),
+                        cells.div_ceil(8)
+                    ),
+                ));
+            }
+            (0..cells)
+                .map(|i| bits[i / 8] >> (i % 8) & 1 == 1)
+                .collect()
+        }
+    };
+    let valid_count = valid.iter().filter(|&&v| v).count();
+    if valid_count != h.valid_cells {
+        return Err(Error::invalid_file(
+            path,
+            format!(
+                "header field `valid_cells` = {} but the mask has {valid_count}",
+                h.valid_cells
+            ),
+        ));
+    }
+    let values = cells
+        .checked_mul(channels.len())
+        .ok_or_else(|| Error::invalid_file(path, "table size overflows"))?;
+    let data = h.codec.decode(secs[1].1, values).map_err(in_file)?;
+    Table::new(grid, channels, h.provenance, data, valid).map_err(in_file)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::parse_grid_spec;
+
+    fn small_table() -> Table {
+        let g = parse_grid_spec("halfdiff3:4x4x6").unwrap();
+        let valid = g.geometric_mask();
+        let n = g.cells();
+        let data: Vec<f32> = (0..n * 3).map(|i| (i as f32).sqrt() * 0.37).collect();
+        Table::new(
+            g,
+            Channels::default_for(3),
+            Provenance {
+                source: "test".into(),
+                tool: "t".into(),
+                notes: vec![],
+            },
+            data,
+            valid,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn round_trips_bit_exactly() {
+        let t = small_table();
+        let bytes = to_bytes(&t, &CodecSpec::default()).unwrap();
+        let back = from_bytes(&bytes, Path::new("x.bpk")).unwrap();
+        assert_eq!(back, t);
+        assert_eq!(to_bytes(&back, &CodecSpec::default()).unwrap(), bytes);
+    }
+
+    #[test]
+    fn every_flipped_byte_and_every_truncation_is_detected() {
+        let t = small_table();
+        let bytes = to_bytes(&t, &CodecSpec::default()).unwrap();
+        for i in 0..bytes.len() {
+            let mut b = bytes.clone();
+            b[i] ^= 0x20;
+            assert!(
+                from_bytes(&b, Path::new("x")).is_err(),
+                "flip at {i} undetected"
+            );
+        }
+        for n in 0..bytes.len() {
+            let e = from_bytes(&bytes[..n], Path::new("x")).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{e}");
+        }
+    }
+
+    #[test]
+    fn explicit_masks_round_trip() {
+        let t = small_table();
+        let mut valid = t.valid().to_vec();
+        valid[5] = !valid[5];
+        let t2 = Table::new(
+            t.grid().clone(),
+            t.channels().clone(),
+            t.provenance().clone(),
+            t.data().to_vec(),
+            valid,
+        )
+        .unwrap();
+        let bytes = to_bytes(&t2, &CodecSpec::default()).unwrap();
+        assert_eq!(from_bytes(&bytes, Path::new("x")).unwrap(), t2);
+    }
+
+    #[test]
+    fn unknown_versions_are_refused() {
+        let mut bytes = to_bytes(&small_table(), &CodecSpec::default()).unwrap();
+        bytes[8] = 2;
+        let pre = crc32fast::hash(&bytes[..16]);
+        bytes[16..20].copy_from_slice(&pre.to_le_bytes());
+        let e = from_bytes(&bytes, Path::new("x")).unwrap_err().to_string();
+        assert!(e.contains("version 2.0 is not supported"), "{e}");
+    }
+}

@@ -1,0 +1,244 @@
+//! A tabulated BRDF: a grid, its channels, where it came from, f32 samples and validity.
+
+use crate::brdf::{Brdf, Channels};
+use crate::geometry::Vec3;
+use crate::grid::Grid;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+
+/// Where a table came from, recorded in every file written.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Provenance {
+    /// The source: a canonical model spec (JSON) or a description of a measured file.
+    pub source: String,
+    /// The tool and version that wrote it (no timestamps or host data: outputs are reproducible).
+    pub tool: String,
+    /// Notes on choices that change meaning, e.g. an anisotropic model forced onto an
+    /// isotropic grid.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
+}
+
+/// How a table is evaluated between its samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Interp {
+    /// The sample whose cell contains the query (rounded in warped index space).
+    Nearest,
+    /// Multilinear in warped index space: periodic φ, clamped θ ends, invalid neighbours
+    /// dropped and the remaining weights renormalized.
+    #[default]
+    Linear,
+}
+
+/// A BRDF tabulated on a grid. Data are cell-major, channel fastest:
+/// `data[cell * channels + c]`. Invalid cells (below the horizon, outside the stored
+/// domain, or marked missing in a measured source) hold 0 and are never interpolated from.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Table {
+    grid: Grid,
+    channels: Channels,
+    provenance: Provenance,
+    data: Vec<f32>,
+    valid: Vec<bool>,
+}
+
+impl Table {
+    /// Builds a table, checking that the sizes agree and every valid value is finite.
+    pub fn new(
+        grid: Grid,
+        channels: Channels,
+        provenance: Provenance,
+        mut data: Vec<f32>,
+        valid: Vec<bool>,
+    ) -> Result<Table> {
+        let cells = grid.cells();
+        let c = channels.len();
+        if valid.len() != cells || data.len() != cells * c {
+            return Err(Error::input(format!(
+                "table: {} values and {} validity flags for {cells} cells × {c} channels",
+                data.len(),
+                valid.len()
+            )));
+        }
+        for (cell, &ok) in valid.iter().enumerate() {
+            let v = &mut data[cell * c..(cell + 1) * c];
+            if ok {
+                if let Some(x) = v.iter().find(|x| !x.is_finite()) {
+                    return Err(Error::Failure(format!(
+                        "table: cell {cell} holds the non-finite value {x}"
+                    )));
+                }
+            } else {
+                v.fill(0.0);
+            }
+        }
+        Ok(Table {
+            grid,
+            channels,
+            provenance,
+            data,
+            valid,
+        })
+    }
+
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+    pub fn channels(&self) -> &Channels {
+        &self.channels
+    }
+    pub fn provenance(&self) -> &Provenance {
+        &self.provenance
+    }
+    pub fn provenance_mut(&mut self) -> &mut Provenance {
+        &mut self.provenance
+    }
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+    pub fn valid(&self) -> &[bool] {
+        &self.valid
+    }
+    pub fn valid_count(&self) -> usize {
+        self.valid.iter().filter(|&&v| v).count()
+    }
+    /// The values of one cell.
+    pub fn cell(&self, cell: usize) -> &[f32] {
+        let c = self.channels.len();
+        &self.data[cell * c..(cell + 1) * c]
+    }
+
+    /// Evaluates the table at a direction pair; 0 outside the stored domain's horizon.
+    /// Queries beyond θmax return an error in [`Table::try_eval`]; here they give 0.
+    pub fn eval_into(&self, wi: Vec3, wo: Vec3, interp: Interp, out: &mut [f64]) {
+        out.fill(0.0);
+        if !self.grid.in_domain(wi, wo) {
+            return;
+        }
+        let Some(coords) = self.grid.coords_of(wi, wo) else {
+            return;
+        };
+        let axes = self.grid.axes();
+        let d = axes.len();
+        let c = self.channels.len();
+        // Per axis: two neighbour indices and the weight of the upper one.
+        let mut lo = [0usize; 4];
+        let mut hi = [0usize; 4];
+        let mut frac = [0f64; 4];
+        for k in 0..d {
+            let a = &axes[k];
+            let n = a.n;
+            let t = a.continuous_index(coords[k]);
+            if a.is_periodic() {
+                let f = t.floor();
+                let i0 = (f as i64).rem_euclid(n as i64) as usize;
+                lo[k] = i0;
+                hi[k] = (i0 + 1) % n;
+                frac[k] = t - f;
+            } else if t <= 0.0 {
+                // Clamped θ ends: constant beyond the first/last sample.
+                lo[k] = 0;
+                hi[k] = 0;
+                frac[k] = 0.0;
+            } else if t >= (n - 1) as f64 {
+                lo[k] = n - 1;
+                hi[k] = n - 1;
+                frac[k] = 0.0;
+            } else {
+                let f = t.floor();
+                lo[k] = f as usize;
+                hi[k] = lo[k] + 1;
+                frac[k] = t - f;
+            }
+            if interp == Interp::Nearest && frac[k] >= 0.5 {
+                lo[k] = hi[k];
+            }
+            if interp == Interp::Nearest {
+                frac[k] = 0.0;
+            }
+        }
+        let mut strides = [0usize; 4];
+        let mut s = 1;
+        for k in (0..d).rev() {
+            strides[k] = s;
+            s *= axes[k].n;
+        }
+        let mut wsum = 0.0;
+        for corner in 0..(1usize << d) {
+            let mut w = 1.0;
+            let mut flat = 0;
+            for k in 0..d {
+                let upper = corner >> k & 1 == 1;
+                let (i, wk) = if upper {
+                    (hi[k], frac[k])
+                } else {
+                    (lo[k], 1.0 - frac[k])
+                };
+                w *= wk;
+                flat += i * strides[k];
+            }
+            if w == 0.0 || !self.valid[flat] {
+                continue;
+            }
+            wsum += w;
+            for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
+                *o += w * v as f64;
+            }
+        }
+        if wsum > 0.0 && wsum != 1.0 {
+            // Some neighbours were invalid: the rest carry the whole weight.
+            for o in out.iter_mut() {
+                *o /= wsum;
+            }
+        }
+    }
+
+    /// Like [`Table::eval_into`] but refuses queries outside the stored domain (θ > θmax)
+    /// instead of returning 0, since a silent 0 there would be an extrapolation.
+    pub fn try_eval(&self, wi: Vec3, wo: Vec3, interp: Interp, out: &mut [f64]) -> Result<()> {
+        if let Some(t) = self.grid.theta_max()
+            && wi.z > 0.0
+            && wo.z > 0.0
+            && !self.grid.in_domain(wi, wo)
+        {
+            return Err(Error::input(format!(
+                "direction pair ({:?}, {:?}) is outside the stored domain θ ≤ {}°",
+                wi.to_array(),
+                wo.to_array(),
+                t.to_degrees()
+            )));
+        }
+        self.eval_into(wi, wo, interp, out);
+        Ok(())
+    }
+}
+
+/// A table with an interpolation mode: a [`Brdf`] like any other.
+#[derive(Clone, Debug)]
+pub struct InterpolatedTable {
+    pub table: Table,
+    pub interp: Interp,
+}
+
+impl Brdf for InterpolatedTable {
+    fn channels(&self) -> &Channels {
+        self.table.channels()
+    }
+    fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
+        self.table.eval_into(wi, wo, self.interp, out);
+    }
+    fn is_isotropic(&self) -> bool {
+        self.table.grid().kind().is_isotropic()
+    }
+    fn is_reciprocal(&self) -> bool {
+        false
+    }
+    fn describe(&self) -> String {
+        format!(
+            "table {} of {}",
+            self.table.grid().describe(),
+            self.table.provenance().source
+        )
+    }
+}
