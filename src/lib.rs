@@ -6,6 +6,7 @@
 //! checked against its source with the metrics of [`check`].
 
 pub mod brdf;
+pub mod check;
 pub mod cli;
 pub mod codec;
 pub mod error;
