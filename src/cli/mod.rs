@@ -4,7 +4,11 @@
 use clap::{Parser, Subcommand};
 use std::io::Write;
 
+mod check;
+mod common;
 mod eval;
+mod pack;
+mod tabulate;
 
 /// brdfpack: turn BRDFs into compact tables and back.
 #[derive(Parser, Debug)]
@@ -18,6 +22,12 @@ pub struct Cli {
 enum Command {
     /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
     Eval(eval::EvalArgs),
+    /// Sample a model (or table) onto a grid and write the table.
+    Tabulate(tabulate::TabulateArgs),
+    /// Measure a table's error against a reference (exit 1 when a --max-* bound is exceeded).
+    Check(check::CheckArgs),
+    /// The whole job: tabulate, encode, write, read back and check; prints sizes, times, errors.
+    Pack(pack::PackArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -32,6 +42,9 @@ pub fn main() -> i32 {
     };
     let result = match cli.command {
         Command::Eval(a) => eval::run(a),
+        Command::Tabulate(a) => tabulate::run(a),
+        Command::Check(a) => check::run(a),
+        Command::Pack(a) => pack::run(a),
     };
     match result {
         Ok(code) => code,

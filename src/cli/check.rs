@@ -1,0 +1,140 @@
+//! `brdfpack check`: round-trip error of a table (or any source) against a reference.
+
+use super::common::Source;
+use crate::check::{CheckOptions, check};
+use crate::table::Interp;
+use clap::Args;
+
+/// Bounds on metrics: exceeding any makes the command exit 1 (a build step can gate on it).
+#[derive(Args, Debug, Clone, Default)]
+pub struct Bounds {
+    /// Fail (exit 1) when log_rmse on the uniform set exceeds this.
+    #[arg(long, value_name = "X", help_heading = "Bounds")]
+    pub max_log_rmse: Option<f64>,
+    /// Fail when rmse exceeds this.
+    #[arg(long, value_name = "X", help_heading = "Bounds")]
+    pub max_rmse: Option<f64>,
+    /// Fail when rel_rmse exceeds this.
+    #[arg(long, value_name = "X", help_heading = "Bounds")]
+    pub max_rel_rmse: Option<f64>,
+    /// Fail when max_abs exceeds this.
+    #[arg(long, value_name = "X", help_heading = "Bounds")]
+    pub max_max_abs: Option<f64>,
+    /// Fail when rel_rmse_core exceeds this.
+    #[arg(long, value_name = "X", help_heading = "Bounds")]
+    pub max_rel_rmse_core: Option<f64>,
+    /// Fail when p99_rel_core exceeds this.
+    #[arg(long, value_name = "X", help_heading = "Bounds")]
+    pub max_p99_rel_core: Option<f64>,
+}
+
+impl Bounds {
+    pub fn list(&self) -> Vec<(&'static str, f64)> {
+        [
+            ("log_rmse", self.max_log_rmse),
+            ("rmse", self.max_rmse),
+            ("rel_rmse", self.max_rel_rmse),
+            ("max_abs", self.max_max_abs),
+            ("rel_rmse_core", self.max_rel_rmse_core),
+            ("p99_rel_core", self.max_p99_rel_core),
+        ]
+        .into_iter()
+        .filter_map(|(n, v)| v.map(|v| (n, v)))
+        .collect()
+    }
+
+    /// Validates the bounds themselves (finite, non-negative).
+    pub fn validate(&self) -> crate::Result<()> {
+        for (n, v) in self.list() {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(crate::Error::input(format!(
+                    "--max-{}: {v} is not a finite non-negative number",
+                    n.replace('_', "-")
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct CheckArgs {
+    /// The table (or model) to check.
+    pub candidate: String,
+    /// The reference: a model spec or a table file.
+    #[arg(long)]
+    pub against: String,
+    /// Interpolation used for tables.
+    #[arg(long, value_enum, default_value_t = Interp::Linear)]
+    pub interp: Interp,
+    /// Pairs in the uniform set (the other sets use a quarter as many).
+    #[arg(long, default_value_t = 65_536)]
+    pub samples: usize,
+    /// Seed of the sample sets (printed in the report).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Only the uniform set.
+    #[arg(long)]
+    pub uniform_only: bool,
+    /// Machine-readable report (one JSON object) instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub bounds: Bounds,
+}
+
+pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
+    a.bounds.validate()?;
+    if a.samples == 0 || a.samples > 100_000_000 {
+        return Err(crate::Error::input(format!(
+            "--samples {} is out of range [1, 100000000]",
+            a.samples
+        ))
+        .into());
+    }
+    let cand = Source::open(&a.candidate)?;
+    let cells = match &cand {
+        Source::Table(t) => Some((t.grid().clone(), t.valid().to_vec())),
+        Source::Model(_) => None,
+    };
+    let cand = cand.into_brdf(a.interp)?;
+    let reference = Source::open(&a.against)?.into_brdf(a.interp)?;
+    let report = check(
+        reference.as_ref(),
+        cand.as_ref(),
+        cells.as_ref().map(|(g, v)| (g, v.as_slice())),
+        &CheckOptions {
+            samples: a.samples,
+            seed: a.seed,
+            all_sets: !a.uniform_only,
+        },
+    )?;
+    let failed = verdict(&report, &a.bounds);
+    if a.json {
+        let mut v = serde_json::to_value(&report)?;
+        v["bounds_exceeded"] = serde_json::json!(failed);
+        println!("{v}");
+    } else {
+        print!("{}", report.to_table());
+        if a.bounds.list().is_empty() {
+            println!("verdict: no bounds given");
+        } else if failed.is_empty() {
+            println!("verdict: pass (all bounds met)");
+        } else {
+            println!("verdict: FAIL ({})", failed.join("; "));
+        }
+    }
+    Ok(if failed.is_empty() { 0 } else { 1 })
+}
+
+/// The bounds a report exceeds, as human strings.
+pub fn verdict(report: &crate::check::CheckReport, bounds: &Bounds) -> Vec<String> {
+    bounds
+        .list()
+        .into_iter()
+        .filter_map(|(name, max)| {
+            let v = report.bounded_value(name)?;
+            (v > max).then(|| format!("{name} = {v:.4e} > {max}"))
+        })
+        .collect()
+}

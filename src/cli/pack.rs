@@ -1,0 +1,198 @@
+//! `brdfpack pack`: the whole job in one command — tabulate, encode, write, read back,
+//! check against the source, and report sizes, times and errors.
+
+use super::check::{Bounds, verdict};
+use super::common::{Source, stderr_is_terminal};
+use crate::check::{CheckOptions, check, fmt_num};
+use crate::codec::CodecSpec;
+use crate::grid::parse_grid_spec;
+use crate::io::{atomic, native};
+use crate::model::Model;
+use crate::table::{Interp, InterpolatedTable};
+use crate::tabulate::{TabulateOptions, tabulate};
+use clap::Args;
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct PackArgs {
+    /// Model spec or table file; default: the built-in material (GGX α = 0.2 gold).
+    pub source: Option<String>,
+    /// Output file (`-` for stdout; the report then goes to stderr).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Grid spec (see `tabulate --help`).
+    #[arg(long, default_value = "merl")]
+    pub grid: String,
+    /// Pairs in the uniform check set.
+    #[arg(long, default_value_t = 65_536)]
+    pub samples: usize,
+    /// Seed of the check's sample sets.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Sample an anisotropic source on an isotropic grid anyway.
+    #[arg(long)]
+    pub allow_anisotropic: bool,
+    /// One JSON object instead of report lines.
+    #[arg(long)]
+    pub json: bool,
+    /// No report (errors and exceeded bounds still print).
+    #[arg(short, long)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub bounds: Bounds,
+}
+
+#[derive(Serialize)]
+struct PackReport {
+    source: String,
+    grid: String,
+    codec: CodecSpec,
+    cells: usize,
+    valid_cells: usize,
+    channels: usize,
+    bytes: usize,
+    raw_f32_bytes: usize,
+    compression_ratio: f64,
+    bits_per_sample: f64,
+    tabulate_s: f64,
+    encode_s: f64,
+    decode_s: f64,
+    check: crate::check::CheckReport,
+    bounds_exceeded: Vec<String>,
+}
+
+pub fn run(a: PackArgs) -> anyhow::Result<i32> {
+    a.bounds.validate()?;
+    let grid = parse_grid_spec(&a.grid)?;
+    let source = match &a.source {
+        Some(s) => Source::open(s)?,
+        None => Source::Model(Model::default_material()),
+    };
+    let src = source.into_brdf(Interp::Linear)?;
+    let t0 = Instant::now();
+    let table = tabulate(
+        src.as_ref(),
+        &grid,
+        &TabulateOptions {
+            allow_anisotropic: a.allow_anisotropic,
+            progress: stderr_is_terminal() && !a.quiet,
+        },
+    )?;
+    let tabulate_s = t0.elapsed().as_secs_f64();
+    let codec = CodecSpec::default();
+    let t1 = Instant::now();
+    let bytes = native::to_bytes(&table, &codec)?;
+    let encode_s = t1.elapsed().as_secs_f64();
+    // Check what a reader will get: decode the bytes we are about to write.
+    let t2 = Instant::now();
+    let back = native::from_bytes(&bytes, &a.output)?;
+    let decode_s = t2.elapsed().as_secs_f64();
+    atomic::write_output(&a.output, &bytes)?;
+    let cells = (back.grid().clone(), back.valid().to_vec());
+    let cand = InterpolatedTable {
+        table: back,
+        interp: Interp::Linear,
+    };
+    let report = check(
+        src.as_ref(),
+        &cand,
+        Some((&cells.0, &cells.1)),
+        &CheckOptions {
+            samples: a.samples,
+            seed: a.seed,
+            all_sets: true,
+        },
+    )?;
+    let failed = verdict(&report, &a.bounds);
+    let raw = table.data().len() * 4;
+    let r = PackReport {
+        source: src.describe(),
+        grid: grid.describe(),
+        codec,
+        cells: grid.cells(),
+        valid_cells: table.valid_count(),
+        channels: table.channels().len(),
+        bytes: bytes.len(),
+        raw_f32_bytes: raw,
+        compression_ratio: raw as f64 / bytes.len() as f64,
+        bits_per_sample: bytes.len() as f64 * 8.0 / table.data().len() as f64,
+        tabulate_s,
+        encode_s,
+        decode_s,
+        check: report,
+        bounds_exceeded: failed.clone(),
+    };
+    let to_stderr = a.output.as_os_str() == "-";
+    let out = if a.json {
+        format!("{}\n", serde_json::to_string(&r)?)
+    } else {
+        human(&r)
+    };
+    if !a.quiet {
+        if to_stderr {
+            eprint!("{out}");
+        } else {
+            print!("{out}");
+        }
+    } else if !failed.is_empty() {
+        eprintln!("brdfpack: bounds exceeded: {}", failed.join("; "));
+    }
+    Ok(if failed.is_empty() { 0 } else { 1 })
+}
+
+fn human(r: &PackReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let u = &r.check.uniform;
+    let _ = writeln!(s, "source        {}", r.source);
+    let _ = writeln!(
+        s,
+        "grid          {} ({} cells, {} valid)",
+        r.grid, r.cells, r.valid_cells
+    );
+    let _ = writeln!(
+        s,
+        "size          {} bytes ({:.2}x smaller than {} bytes of raw f32, {:.2} bits/sample)",
+        r.bytes, r.compression_ratio, r.raw_f32_bytes, r.bits_per_sample
+    );
+    let _ = writeln!(
+        s,
+        "time          tabulate {:.3} s, encode {:.3} s, decode {:.3} s",
+        r.tabulate_s, r.encode_s, r.decode_s
+    );
+    let _ = writeln!(
+        s,
+        "check         uniform set, {} pairs, seed {}, linear interpolation; ε = {:.3e}",
+        u.samples,
+        u.seed.unwrap_or(0),
+        u.combined.epsilon
+    );
+    let worst = r.check.worst_other.as_ref();
+    for name in [
+        "log_rmse",
+        "rmse",
+        "rel_rmse",
+        "max_abs",
+        "max_rel",
+        "rel_rmse_core",
+        "p99_rel_core",
+        "nonfinite",
+        "negative",
+    ] {
+        let v = fmt_num(u.combined.get(name));
+        let _ = match worst.and_then(|w| w.get(name)) {
+            Some(w) => writeln!(
+                s,
+                "{name:<13} {v:<11}  (worst of grazing/specular/cells: {})",
+                fmt_num(Some(w))
+            ),
+            None => writeln!(s, "{name:<13} {v}"),
+        };
+    }
+    if !r.bounds_exceeded.is_empty() {
+        let _ = writeln!(s, "verdict       FAIL ({})", r.bounds_exceeded.join("; "));
+    }
+    s
+}
