@@ -512,7 +512,7 @@ impl CheckReport {
 pub fn fmt_num(v: Option<f64>) -> String {
     match v {
         None => "-".into(),
-        Some(x) if x == 0.0 => "0".into(),
+        Some(0.0) => "0".into(),
         Some(x) if x.fract() == 0.0 && x.abs() < 1e9 => format!("{x}"),
         Some(x) => format!("{x:.4e}"),
     }
