@@ -126,10 +126,12 @@ impl Table {
         let mut lo = [0usize; 4];
         let mut hi = [0usize; 4];
         let mut frac = [0f64; 4];
+        let mut tcont = [0f64; 4];
         for k in 0..d {
             let a = &axes[k];
             let n = a.n;
             let t = a.continuous_index(coords[k]);
+            tcont[k] = t;
             if a.is_periodic() {
                 let f = t.floor();
                 let i0 = (f as i64).rem_euclid(n as i64) as usize;
@@ -191,7 +193,65 @@ impl Table {
             for o in out.iter_mut() {
                 *o /= wsum;
             }
+        } else if wsum == 0.0
+            && let Some(flat) = self.nearest_valid(&tcont[..d], &strides[..d])
+        {
+            // The query is above the horizon but every neighbouring sample is below it (a thin
+            // sliver of the valid region near grazing on half/difference grids): hold the
+            // value of the nearest valid sample rather than return a false 0.
+            for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
+                *o = v as f64;
+            }
         }
+    }
+
+    /// Search radius (in cells) of the nearest-valid fallback.
+    const FALLBACK_RADIUS: i64 = 3;
+
+    /// The valid cell nearest (in index space) to continuous indices `t`, within
+    /// [`Self::FALLBACK_RADIUS`] cells; ties go to the lowest flat index (deterministic).
+    fn nearest_valid(&self, t: &[f64], strides: &[usize]) -> Option<usize> {
+        let axes = self.grid.axes();
+        let d = t.len();
+        let r = Self::FALLBACK_RADIUS;
+        let span = (2 * r + 2) as usize;
+        let mut best: Option<(f64, usize)> = None;
+        let mut off = [0usize; 4];
+        'outer: loop {
+            let mut flat = 0usize;
+            let mut dist = 0.0;
+            let mut inside = true;
+            for k in 0..d {
+                let a = &axes[k];
+                let i = t[k].floor() as i64 - r + off[k] as i64;
+                let idx = if a.is_periodic() {
+                    i.rem_euclid(a.n as i64)
+                } else if i < 0 || i >= a.n as i64 {
+                    inside = false;
+                    0
+                } else {
+                    i
+                };
+                dist += (i as f64 - t[k]).powi(2);
+                flat += idx as usize * strides[k];
+            }
+            if inside
+                && self.valid[flat]
+                && best.is_none_or(|(bd, bf)| dist < bd || (dist == bd && flat < bf))
+            {
+                best = Some((dist, flat));
+            }
+            // Next offset (odometer over span^d).
+            for k in 0..d {
+                off[k] += 1;
+                if off[k] < span {
+                    continue 'outer;
+                }
+                off[k] = 0;
+            }
+            break;
+        }
+        best.map(|(_, f)| f)
     }
 
     /// Like [`Table::eval_into`] but refuses queries outside the stored domain (θ > θmax)

@@ -1,0 +1,220 @@
+//! End-to-end tests of the pipeline commands: tabulate → file → check, pack, stdin/stdout.
+
+use assert_cmd::Command;
+use predicates::prelude::*;
+
+fn brdfpack() -> Command {
+    Command::cargo_bin("brdfpack").unwrap()
+}
+
+#[test]
+fn tabulate_then_check_passes_a_bound_and_fails_a_tight_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("t.bpk");
+    brdfpack()
+        .args([
+            "tabulate",
+            "lambert:albedo=0.8/0.5/0.2",
+            "--grid",
+            "halfdiff3:16x16x32",
+            "-o",
+        ])
+        .arg(&out)
+        .assert()
+        .success()
+        .stdout("");
+    // Lambert is constant: any table of it is exact up to f32 rounding.
+    brdfpack()
+        .arg("check")
+        .arg(&out)
+        .args([
+            "--against",
+            "lambert:albedo=0.8/0.5/0.2",
+            "--samples",
+            "4096",
+            "--max-log-rmse",
+            "1e-6",
+        ])
+        .assert()
+        .success()
+        .stdout(predicate::str::contains("verdict: pass"));
+    // Against a different albedo the error is known: |0.8 − 0.7|/π on one channel of three.
+    let o = brdfpack()
+        .arg("check")
+        .arg(&out)
+        .args([
+            "--against",
+            "lambert:albedo=0.7/0.5/0.2",
+            "--samples",
+            "4096",
+            "--json",
+            "--max-rmse",
+            "0.01",
+        ])
+        .assert()
+        .code(1)
+        .get_output()
+        .stdout
+        .clone();
+    let v: serde_json::Value = serde_json::from_slice(&o).unwrap();
+    let rmse = v["uniform"]["per_channel"][0]["rmse"].as_f64().unwrap();
+    assert!((rmse - 0.1 / std::f64::consts::PI).abs() < 1e-7, "{rmse}");
+    assert_eq!(v["bounds_exceeded"].as_array().unwrap().len(), 1);
+}
+
+#[test]
+fn tables_stream_through_stdin_and_stdout() {
+    let a = brdfpack()
+        .args(["tabulate", "lambert", "--grid", "halfdiff4:6", "-o", "-"])
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    assert!(a.starts_with(b"\x89BPK"));
+    brdfpack()
+        .args([
+            "check",
+            "-",
+            "--against",
+            "lambert",
+            "--samples",
+            "1000",
+            "--max-rmse",
+            "1e-6",
+        ])
+        .write_stdin(a)
+        .assert()
+        .success();
+}
+
+#[test]
+fn pack_default_material_reports_every_metric() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("p.bpk");
+    let o = brdfpack()
+        .args([
+            "pack",
+            "--grid",
+            "halfdiff3:32x32x64",
+            "--samples",
+            "4096",
+            "--json",
+            "-o",
+        ])
+        .arg(&out)
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let v: serde_json::Value = serde_json::from_slice(&o).unwrap();
+    assert_eq!(
+        v["bytes"].as_u64().unwrap(),
+        std::fs::metadata(&out).unwrap().len()
+    );
+    for m in [
+        "rmse",
+        "rel_rmse",
+        "max_abs",
+        "max_rel",
+        "log_rmse",
+        "rel_rmse_core",
+        "p99_rel_core",
+    ] {
+        let x = v["check"]["uniform"]["combined"][m].as_f64().unwrap();
+        assert!(x.is_finite() && x >= 0.0, "{m} = {x}");
+    }
+    assert_eq!(v["check"]["uniform"]["combined"]["nonfinite"], 0);
+}
+
+#[test]
+fn same_input_same_bytes_for_any_thread_count() {
+    let run = |threads: &str| {
+        brdfpack()
+            .env("RAYON_NUM_THREADS", threads)
+            .args([
+                "tabulate",
+                "lambert:albedo=0.3",
+                "--grid",
+                "halfdiff4:8x8x8x12",
+                "-o",
+                "-",
+            ])
+            .assert()
+            .success()
+            .get_output()
+            .stdout
+            .clone()
+    };
+    assert_eq!(run("1"), run("2"));
+}
+
+#[test]
+fn bad_inputs_exit_2_with_a_message_and_no_output_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.bpk");
+    let cases: &[(&[&str], &str)] = &[
+        (&["tabulate", "lambert", "--grid", "cube:4"], "unknown kind"),
+        (
+            &["tabulate", "lambert", "--grid", "halfdiff3:0x4x4"],
+            "resolution 0",
+        ),
+        (
+            &["tabulate", "nosuchmodel", "--grid", "halfdiff3:4"],
+            "nosuchmodel",
+        ),
+        (
+            &["tabulate", "lambert", "--grid", "halfdiff3:4,theta-max=95"],
+            "theta-max",
+        ),
+    ];
+    for (args, needle) in cases {
+        brdfpack()
+            .args(*args)
+            .arg("-o")
+            .arg(&out)
+            .assert()
+            .code(2)
+            .stdout("")
+            .stderr(
+                predicate::str::starts_with("brdfpack: ").and(predicate::str::contains(*needle)),
+            );
+        assert!(!out.exists());
+    }
+    // A corrupt table file.
+    let bad = dir.path().join("bad.bpk");
+    std::fs::write(&bad, b"\x89BPK\r\n\x1a\nrubbish").unwrap();
+    brdfpack()
+        .arg("check")
+        .arg(&bad)
+        .args(["--against", "lambert"])
+        .assert()
+        .code(2)
+        .stderr(predicate::str::contains("bad.bpk"));
+    // An output directory that does not exist.
+    brdfpack()
+        .args([
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "-o",
+            "/nonexistent-dir/x.bpk",
+        ])
+        .assert()
+        .code(2)
+        .stderr(predicate::str::contains("does not exist"));
+    // A bound that is not a number.
+    brdfpack()
+        .args([
+            "check",
+            "lambert",
+            "--against",
+            "lambert",
+            "--max-log-rmse",
+            "NaN",
+        ])
+        .assert()
+        .code(2);
+}
