@@ -242,12 +242,12 @@ impl Table {
                 best = Some((dist, flat));
             }
             // Next offset (odometer over span^d).
-            for k in 0..d {
-                off[k] += 1;
-                if off[k] < span {
+            for o in off.iter_mut().take(d) {
+                *o += 1;
+                if *o < span {
                     continue 'outer;
                 }
-                off[k] = 0;
+                *o = 0;
             }
             break;
         }
