@@ -302,3 +302,128 @@ impl Brdf for InterpolatedTable {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::parse_grid_spec;
+    use crate::math::PI;
+    use crate::tabulate::{TabulateOptions, tabulate};
+
+    /// Smooth, reciprocal, anisotropic (via h.x²) test BRDF.
+    struct Smooth(Channels, bool);
+    impl Brdf for Smooth {
+        fn channels(&self) -> &Channels {
+            &self.0
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
+            if wi.z <= 0.0 || wo.z <= 0.0 {
+                out.fill(0.0);
+                return;
+            }
+            let h = (wi + wo).try_normalize().unwrap();
+            let aniso = if self.1 { 0.5 * h.x * h.x } else { 0.0 };
+            out[0] = 0.2 + h.z * h.z + 0.3 * wi.z * wo.z + 0.1 * wi.dot(wo) + aniso;
+        }
+        fn is_isotropic(&self) -> bool {
+            !self.1
+        }
+        fn describe(&self) -> String {
+            "smooth".into()
+        }
+    }
+
+    /// Walks a path of queries and asserts no step jumps more than 4× the median step
+    /// (plus a small floor): a seam would show as one outlier step.
+    fn assert_continuous(t: &Table, path: impl Iterator<Item = (Vec3, Vec3)>, what: &str) {
+        let mut v = [0.0];
+        let vals: Vec<f64> = path
+            .map(|(wi, wo)| {
+                t.eval_into(wi, wo, Interp::Linear, &mut v);
+                v[0]
+            })
+            .collect();
+        let mut steps: Vec<f64> = vals.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+        let max = steps.iter().cloned().fold(0.0, f64::max);
+        steps.sort_by(f64::total_cmp);
+        let median = steps[steps.len() / 2];
+        assert!(
+            max <= 4.0 * median + 1e-6,
+            "{what}: max step {max} vs median {median}"
+        );
+    }
+
+    #[test]
+    fn interpolation_is_continuous_across_the_phi_wrap() {
+        let src = Smooth(Channels::default_for(1), true);
+        for spec in ["spherical4:8x12x8x12", "halfdiff4:8x12x8x12"] {
+            let t = tabulate(
+                &src,
+                &parse_grid_spec(spec).unwrap(),
+                &TabulateOptions::default(),
+            )
+            .unwrap();
+            // Rotate both directions together through φ = 0 ≡ 2π (moves φi, φo and φh).
+            let path = (0..401).map(|k| {
+                let a = -0.3 + 0.6 * k as f64 / 400.0;
+                let wi = Vec3::from_spherical(0.6, 0.2).rotate_z(a);
+                let wo = Vec3::from_spherical(0.5, 2.9).rotate_z(a);
+                (wi, wo)
+            });
+            assert_continuous(&t, path, spec);
+        }
+    }
+
+    #[test]
+    fn interpolation_is_continuous_across_the_phi_d_fold() {
+        let src = Smooth(Channels::default_for(1), false);
+        let g = parse_grid_spec("halfdiff3:16x16x12").unwrap();
+        let t = tabulate(&src, &g, &TabulateOptions::default()).unwrap();
+        // φd through π (folds to 0) and through 0 (from the negative side, folds to π).
+        for centre in [PI, 0.0] {
+            let path = (0..401).map(|k| {
+                let pd = centre - 0.4 + 0.8 * k as f64 / 400.0;
+                crate::geometry::HalfDiff {
+                    theta_h: 0.3,
+                    phi_h: 0.0,
+                    theta_d: 0.5,
+                    phi_d: pd,
+                }
+                .to_dirs()
+            });
+            assert_continuous(&t, path, "phi_d fold");
+        }
+    }
+
+    #[test]
+    fn nearest_returns_samples_and_linear_interpolates_between() {
+        let src = Smooth(Channels::default_for(1), true);
+        let g = parse_grid_spec("halfdiff4:8").unwrap();
+        let t = tabulate(&src, &g, &TabulateOptions::default()).unwrap();
+        let mut idx = [0usize; 4];
+        let mut v = [0.0];
+        for f in (0..g.cells()).step_by(7) {
+            g.unflatten(f, &mut idx);
+            let (wi, wo) = g.cell_dirs(&idx);
+            if t.valid()[f] {
+                t.eval_into(wi, wo, Interp::Nearest, &mut v);
+                assert!((v[0] - t.cell(f)[0] as f64).abs() < 1e-6);
+            }
+        }
+    }
+
+    #[test]
+    fn queries_beyond_theta_max_are_refused() {
+        let src = Smooth(Channels::default_for(1), false);
+        let g = parse_grid_spec("spherical3:8,theta-max=60").unwrap();
+        let t = tabulate(&src, &g, &TabulateOptions::default()).unwrap();
+        let mut v = [0.0];
+        let inside = Vec3::from_spherical(0.5, 0.0);
+        let outside = Vec3::from_spherical(70f64.to_radians(), 0.0);
+        assert!(t.try_eval(inside, inside, Interp::Linear, &mut v).is_ok());
+        let e = t
+            .try_eval(inside, outside, Interp::Linear, &mut v)
+            .unwrap_err();
+        assert!(e.to_string().contains("outside the stored domain"));
+    }
+}
