@@ -374,9 +374,27 @@ mod tests {
         }
     }
 
+    /// Isotropic and reciprocal (period π in φd) but not mirror-symmetric: sin 2φd.
+    struct Twisted(Channels);
+    impl Brdf for Twisted {
+        fn channels(&self) -> &Channels {
+            &self.0
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
+            let hd = crate::geometry::HalfDiff::from_dirs(wi, wo).unwrap();
+            out[0] = 0.5 + 0.3 * (2.0 * hd.phi_d).sin() * hd.theta_d.sin().powi(2);
+        }
+        fn is_isotropic(&self) -> bool {
+            true
+        }
+        fn describe(&self) -> String {
+            "twisted".into()
+        }
+    }
+
     #[test]
     fn interpolation_is_continuous_across_the_phi_d_fold() {
-        let src = Smooth(Channels::default_for(1), false);
+        let src = Twisted(Channels::default_for(1));
         let g = parse_grid_spec("halfdiff3:16x16x12").unwrap();
         let t = tabulate(&src, &g, &TabulateOptions::default()).unwrap();
         // φd through π (folds to 0) and through 0 (from the negative side, folds to π).
