@@ -7,6 +7,7 @@ use std::io::Write;
 mod check;
 mod common;
 mod eval;
+mod models;
 mod pack;
 mod tabulate;
 
@@ -28,6 +29,8 @@ enum Command {
     Check(check::CheckArgs),
     /// The whole job: tabulate, encode, write, read back and check; prints sizes, times, errors.
     Pack(pack::PackArgs),
+    /// List the analytic models with their parameters, defaults, ranges and properties.
+    Models(models::ModelsArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -45,6 +48,7 @@ pub fn main() -> i32 {
         Command::Tabulate(a) => tabulate::run(a),
         Command::Check(a) => check::run(a),
         Command::Pack(a) => pack::run(a),
+        Command::Models(a) => models::run(a),
     };
     match result {
         Ok(code) => code,
