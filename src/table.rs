@@ -130,7 +130,14 @@ impl Table {
         for k in 0..d {
             let a = &axes[k];
             let n = a.n;
-            let t = a.continuous_index(coords[k]);
+            let mut t = a.continuous_index(coords[k]);
+            // A query rebuilt from a sample position lands within rounding (~1e-13) of an
+            // integer index; snap it so the sample is returned exactly rather than blended
+            // with a neighbour that may be orders of magnitude larger (a specular peak).
+            let r = t.round();
+            if (t - r).abs() < 1e-9 {
+                t = r;
+            }
             tcont[k] = t;
             if a.is_periodic() {
                 let f = t.floor();
