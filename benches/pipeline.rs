@@ -1,0 +1,61 @@
+//! Benchmarks of the core pipeline (divan): model evaluation, tabulation on the MERL grid,
+//! and interpolated table lookups. Run: `cargo bench --bench pipeline`.
+//! Figures and the machine they were taken on are in docs/benchmarks.md.
+
+use brdfpack::brdf::Brdf;
+use brdfpack::check::SampleSet;
+use brdfpack::grid::Grid;
+use brdfpack::model::Model;
+use brdfpack::table::{Interp, InterpolatedTable};
+use brdfpack::tabulate::{TabulateOptions, tabulate};
+use divan::{Bencher, black_box, counter::ItemsCount};
+
+fn main() {
+    divan::main();
+}
+
+/// The GGX conductor of the peer comparison (copper-like η, k of shared/peers/README.md).
+const GGX_CONDUCTOR: &str = "ggx:alpha=0.2,shadowing=smith-separable,fresnel=conductor,eta=0.2004/0.924/1.1022,k=3.9129/2.4528/2.1421";
+
+const PAIRS: usize = 100_000;
+
+#[divan::bench(args = [GGX_CONDUCTOR, "lambert:albedo=0.8/0.5/0.2", "ward:alpha_x=0.1,alpha_y=0.3,rho_s=0.3,rho_d=0.1"])]
+fn eval_model(bencher: Bencher, spec: &str) {
+    let m = Model::parse(spec).unwrap();
+    let set = SampleSet::uniform(PAIRS, 1);
+    let mut out = [0.0; 3];
+    bencher.counter(ItemsCount::new(PAIRS)).bench_local(|| {
+        let mut acc = 0.0;
+        for &(wi, wo) in &set.pairs {
+            m.eval(black_box(wi), black_box(wo), &mut out);
+            acc += out[0];
+        }
+        acc
+    });
+}
+
+#[divan::bench(sample_count = 10)]
+fn tabulate_merl_grid_ggx_conductor(bencher: Bencher) {
+    let m = Model::parse(GGX_CONDUCTOR).unwrap();
+    let g = Grid::merl();
+    bencher
+        .counter(ItemsCount::new(g.cells()))
+        .bench_local(|| tabulate(&m, &g, &TabulateOptions::default()).unwrap());
+}
+
+#[divan::bench(args = [Interp::Linear, Interp::Nearest])]
+fn lookup_merl_grid_table(bencher: Bencher, interp: Interp) {
+    let m = Model::parse(GGX_CONDUCTOR).unwrap();
+    let table = tabulate(&m, &Grid::merl(), &TabulateOptions::default()).unwrap();
+    let t = InterpolatedTable { table, interp };
+    let set = SampleSet::uniform(PAIRS, 2);
+    let mut out = [0.0; 3];
+    bencher.counter(ItemsCount::new(PAIRS)).bench_local(|| {
+        let mut acc = 0.0;
+        for &(wi, wo) in &set.pairs {
+            t.eval(black_box(wi), black_box(wo), &mut out);
+            acc += out[0];
+        }
+        acc
+    });
+}
