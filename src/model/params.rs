@@ -309,7 +309,8 @@ impl<'a> ParamReader<'a> {
             if !ignore.contains(&key.as_str()) && !decls.iter().any(|d| d.name == key) {
                 let accepted: Vec<&str> = decls.iter().map(|d| d.name).collect();
                 return Err(Error::input(format!(
-                    "{context}: unknown parameter {prefix}{key:?} (accepted: {})",
+                    "{context}: unknown parameter {:?} (accepted: {})",
+                    format!("{prefix}{key}"),
                     accepted.join(", ")
                 )));
             }
