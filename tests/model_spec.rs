@@ -253,6 +253,17 @@ const BAD: &[(&str, &[&str])] = &[
 ];
 
 #[test]
+fn channel_count_is_capped() {
+    let many = vec![0.5; 5000];
+    let e = Model::from_json(&json!({"model": "lambert", "albedo": many})).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("albedo has 5000 values; at most 4096"),
+        "{e}"
+    );
+}
+
+#[test]
 fn bad_input_is_an_input_error_naming_parameter_and_value() {
     for (spec, needles) in BAD {
         match Model::parse(spec) {
