@@ -1,5 +1,6 @@
 //! Oren–Nayar rough diffuse reflection, qualitative model (Oren & Nayar 1994, Eq. 30).
 
+use super::finite_large;
 use super::params::{ChannelCount, ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
 use crate::Result;
 use crate::brdf::Channels;
@@ -66,8 +67,9 @@ impl OrenNayar {
     pub(crate) fn eval_channels(&self, wi: Vec3, wo: Vec3, first: usize, out: &mut [f64]) {
         // sinθ_i sinθ_o cos(φ_i − φ_o), without angles.
         let cos_phi_term = (wi.x * wo.x + wi.y * wo.y).max(0.0);
-        // max(c_i, c_o) > 0 above the horizon.
-        let factor = FRAC_1_PI * (self.a + self.b * cos_phi_term / wi.z.max(wo.z));
+        // max(c_i, c_o) > 0 above the horizon. The B term grows like 1/max(c_i, c_o) at
+        // grazing pairs (sin α tan β of Eq. 30), past f64 within ~1e-308 of the horizon.
+        let factor = finite_large(FRAC_1_PI * (self.a + self.b * cos_phi_term / wi.z.max(wo.z)));
         for (o, a) in out.iter_mut().zip(&self.albedo[first..]) {
             *o = a * factor;
         }

@@ -237,6 +237,10 @@ pub fn fmt_num(x: f64) -> String {
     }
 }
 
+/// Upper bound on the channel count C (dense spectral sampling needs a few hundred); keeps a
+/// hostile spec from making every evaluation and table enormous.
+pub const MAX_CHANNELS: usize = 4096;
+
 /// Tracks the lengths of per-channel lists so that they agree: scalars (and one-element
 /// lists) broadcast; every longer list must have the same length C.
 #[derive(Debug, Default)]
@@ -249,6 +253,11 @@ impl ChannelCount {
     pub fn record(&mut self, context: &str, name: &str, len: usize) -> Result<()> {
         if len <= 1 {
             return Ok(());
+        }
+        if len > MAX_CHANNELS {
+            return Err(Error::input(format!(
+                "{context}: {name} has {len} values; at most {MAX_CHANNELS} channels are accepted"
+            )));
         }
         match &self.first {
             None => self.first = Some((name.to_string(), len)),
@@ -309,7 +318,8 @@ impl<'a> ParamReader<'a> {
             if !ignore.contains(&key.as_str()) && !decls.iter().any(|d| d.name == key) {
                 let accepted: Vec<&str> = decls.iter().map(|d| d.name).collect();
                 return Err(Error::input(format!(
-                    "{context}: unknown parameter {prefix}{key:?} (accepted: {})",
+                    "{context}: unknown parameter {:?} (accepted: {})",
+                    format!("{prefix}{key}"),
                     accepted.join(", ")
                 )));
             }

@@ -134,7 +134,13 @@ impl Ward {
             // sqrt(c_i) sqrt(c_o): the product c_i c_o underflows near the horizon.
             WardVariant::Ward => 1.0 / (4.0 * PI * ax * ay * wi.z.sqrt() * wo.z.sqrt()),
             WardVariant::Duer => 1.0 / (4.0 * PI * ax * ay) / wi.z / wo.z,
-            WardVariant::Balanced => hv.dot(hv) / (PI * ax * ay) / sqr(hv.z) / sqr(hv.z),
+            // (H·H)/H.z⁴ as (1 + tan²θ_H)/H.z²: H·H itself underflows to 0 for directions
+            // within ~1e-160 of the horizon, which would give 0/0.
+            WardVariant::Balanced => {
+                let sin2 = hv.sin2_theta();
+                let tan2 = if sin2 == 0.0 { 0.0 } else { sin2 / sqr(hv.z) };
+                (1.0 + tan2) / (PI * ax * ay) / sqr(hv.z)
+            }
         };
         finite_large(falloff * p)
     }
