@@ -9,6 +9,7 @@ pub mod brdf;
 pub mod cli;
 pub mod error;
 pub mod geometry;
+pub mod io;
 pub mod math;
 pub mod model;
 

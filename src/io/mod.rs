@@ -1,0 +1,3 @@
+//! File formats: readers and writers of external and native BRDF files.
+
+pub mod rgl;
