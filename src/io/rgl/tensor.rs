@@ -186,7 +186,7 @@ impl<'a> TensorFile<'a> {
         for index in 0..n_fields {
             let truncated = |what: &str, pos: usize| {
                 bad(format!(
-                    "field table truncated: record #{index} ends inside its {what} (byte {pos}, file is {} bytes)",
+                    "field table truncated: record #{index} is cut inside its {what}, which starts at byte {pos} (file is {} bytes)",
                     bytes.len()
                 ))
             };
@@ -350,8 +350,8 @@ impl<'a> FieldData<'a> {
     }
 }
 
-/// Serialises fields as a version-1.0 tensor file, each data block padded to 8-byte
-/// alignment like Mitsuba's Python writer. The caller keeps data length and shape
+/// Serialises fields as a version-1.0 tensor file, each data block starting at an 8-byte
+/// aligned offset like Mitsuba's Python writer. The caller keeps data length and shape
 /// consistent (`debug_assert`ed); used for synthetic test files.
 pub fn encode(fields: &[FieldData]) -> Vec<u8> {
     let table_len: usize = fields
@@ -386,6 +386,6 @@ pub fn encode(fields: &[FieldData]) -> Vec<u8> {
         out.resize(align(out.len()), 0);
         out.extend_from_slice(&f.data);
     }
-    out.resize(align(out.len()), 0);
+    // No padding after the last block (as in the RGL files), so any truncation cuts data.
     out
 }

@@ -176,6 +176,12 @@ impl VndfWarp {
             // norm = float32(1/g[H−2]); D = d·norm, C = float32(c)·norm, G = float32(g)·norm,
             // each product rounded to float32 as Mitsuba stores them.
             let norm = (1.0 / total) as f32;
+            // A mass below ~3e-39 has no float32 reciprocal; the tables would become Inf.
+            if !norm.is_finite() {
+                return Err(format!(
+                    "θi slice {s} integrates to {total}, too small to normalise in float32"
+                ));
+            }
             density.extend(d.iter().map(|&v| v * norm));
             conditional_cdf.extend(c.iter().map(|&v| v as f32 * norm));
             marginal_cdf.extend(g.iter().map(|&v| v as f32 * norm));
