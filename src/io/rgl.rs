@@ -258,14 +258,19 @@ impl RglBsdf {
         // Step 2 (reduction folding) applies to anisotropic files only; they are refused.
         // Step 3: the half vector (wi.z + wo.z > 0, so the sum is never zero).
         let m = (wi + wo) * (1.0 / (wi + wo).length());
-        // Step 4: angles; atan2 as Dr.Jit's.
+        // Step 4: angles. φi and φm enter only through φm − φi (isotropic), computed as one
+        // relative azimuth; φi alone is needed only by a σ table whose rows differ.
         let theta_i = elevation(wi);
-        let phi_i = drjit_atan2(wi.y, wi.x);
         let theta_m = elevation(m);
-        let phi_m = drjit_atan2(m.y, m.x);
+        let delta_phi = relative_azimuth(wi, m);
         // Step 5: unit-square coordinates of wi and of m relative to φi (isotropic).
-        let u_wi = [(theta_i / FRAC_PI_2).sqrt(), (phi_i + PI) / (2.0 * PI)];
-        let v = (phi_m - phi_i + PI) / (2.0 * PI);
+        let u_wi_y = if self.sigma.varies_along_y() {
+            (drjit_atan2(wi.y, wi.x) + PI) / (2.0 * PI)
+        } else {
+            0.0 // any row gives the same value: skip an atan2
+        };
+        let u_wi = [(theta_i / FRAC_PI_2).sqrt(), u_wi_y];
+        let v = (delta_phi + PI) / (2.0 * PI);
         let u_m = [(theta_m / FRAC_PI_2).sqrt(), v - v.floor()];
         // Step 6: θi slice weights (the single φi slice selects itself).
         let blend = self.theta_axis.locate(theta_i);
@@ -345,6 +350,23 @@ fn drjit_atan2(y: f64, x: f64) -> f64 {
     }
 }
 
+/// φm − φi (mod 2π) for Dr.Jit's φ = atan2(y, x) of the two directions, as one atan2 of
+/// the cross and dot products of their xy projections. Equal to the difference of the two
+/// azimuths after step 5's wrap, including Dr.Jit's atan2(0, 0) = 0 for a direction on the
+/// normal, and ±π (both wrap to u_φ = 0) for opposite projections.
+#[inline]
+fn relative_azimuth(wi: Vec3, m: Vec3) -> f64 {
+    if wi.x == 0.0 && wi.y == 0.0 {
+        // φi = atan2(0, 0) = 0 (normal incidence).
+        drjit_atan2(m.y, m.x)
+    } else if m.x == 0.0 && m.y == 0.0 {
+        // φm = 0 (exact mirror configuration).
+        -drjit_atan2(wi.y, wi.x)
+    } else {
+        drjit_atan2(wi.x * m.y - wi.y * m.x, wi.x * m.x + wi.y * m.y)
+    }
+}
+
 /// A 1-dimensional float32 field's values.
 fn vector(file: &TensorFile, field: &TensorField) -> Result<Vec<f32>> {
     if field.shape.len() != 1 {
@@ -382,4 +404,59 @@ fn grid2(file: &TensorFile, name: &str, positive: bool) -> Result<Grid2> {
         return Err(file.field_error(name, format!("value {v}, expected > 0")));
     }
     Ok(Grid2::new(cols, rows, values))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::SplitMix64;
+
+    /// step 5's wrap of an azimuth difference to [0, 1).
+    fn wrap(d: f64) -> f64 {
+        let v = (d + PI) / (2.0 * PI);
+        v - v.floor()
+    }
+
+    #[test]
+    fn relative_azimuth_equals_the_difference_of_azimuths() {
+        let mut rng = SplitMix64::new(11);
+        for _ in 0..10_000 {
+            let a = Vec3::from_spherical(rng.next_f64() * 1.5, (rng.next_f64() - 0.5) * 7.0);
+            let b = Vec3::from_spherical(rng.next_f64() * 1.5, (rng.next_f64() - 0.5) * 7.0);
+            let direct = drjit_atan2(b.y, b.x) - drjit_atan2(a.y, a.x);
+            let d = (wrap(relative_azimuth(a, b)) - wrap(direct)).abs();
+            // Away from the seam the two agree to rounding; across it they differ by ~1.
+            assert!(!(1e-14..=1.0 - 1e-14).contains(&d), "{a:?} {b:?}");
+        }
+        // Exact special cases: coordinate planes, normal incidence, the mirror half vector.
+        let cases = [
+            (Vec3::new(0.6, 0.0, 0.8), Vec3::new(-0.3, 0.0, 0.9), 0.0),
+            (Vec3::new(-0.6, 0.0, 0.8), Vec3::new(0.3, 0.0, 0.9), 0.0),
+            (Vec3::new(0.0, 0.6, 0.8), Vec3::new(0.0, -0.3, 0.9), 0.0),
+            (Vec3::new(0.6, 0.0, 0.8), Vec3::new(0.3, 0.0, 0.9), 0.5),
+            (Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.3, 0.9), 0.75),
+            (Vec3::new(0.0, 0.6, 0.8), Vec3::new(0.0, 0.0, 1.0), 0.25),
+            (Vec3::new(-0.6, -0.0, 0.8), Vec3::new(0.0, 0.0, 1.0), 0.0),
+        ];
+        for (a, b, want) in cases {
+            assert_eq!(wrap(relative_azimuth(a, b)), want, "{a:?} {b:?}");
+        }
+    }
+
+    #[test]
+    fn drjit_atan2_conventions() {
+        assert_eq!(drjit_atan2(0.0, 0.0), 0.0);
+        assert_eq!(drjit_atan2(-0.0, -0.0), 0.0);
+        assert_eq!(drjit_atan2(-0.0, -1.0), PI);
+        assert_eq!(drjit_atan2(-0.0, 1.0), 0.0);
+        assert_eq!(drjit_atan2(1.0, -0.0), FRAC_PI_2);
+    }
+
+    #[test]
+    fn elevation_is_acos_for_unit_vectors() {
+        for t in [0.0, 1e-9, 0.3, 1.0, 1.5, FRAC_PI_2] {
+            let d = Vec3::from_spherical(t, 0.7);
+            assert!((elevation(d) - t).abs() < 1e-15, "{t}");
+        }
+    }
 }

@@ -13,11 +13,19 @@ pub struct SliceBlend {
 }
 
 impl SliceBlend {
-    /// T̃ = w0·T[k0] + w1·T[k1] for a table stored slice after slice, `stride` apart.
+    /// The two blended slices of a table stored slice after slice, `len` values each.
     #[inline]
-    fn blend(&self, table: &[f32], stride: usize, index: usize) -> f64 {
-        self.w0 * table[self.k0 * stride + index] as f64
-            + self.w1 * table[self.k1 * stride + index] as f64
+    fn slices<'t>(&self, table: &'t [f32], len: usize) -> (&'t [f32], &'t [f32]) {
+        (
+            &table[self.k0 * len..][..len],
+            &table[self.k1 * len..][..len],
+        )
+    }
+
+    /// T̃ = w0·T[k0] + w1·T[k1] for one entry `a` of slice k0 and `b` of slice k1.
+    #[inline]
+    fn mix(&self, a: f32, b: f32) -> f64 {
+        self.w0 * a as f64 + self.w1 * b as f64
     }
 }
 
@@ -66,16 +74,37 @@ impl ThetaAxis {
     }
 }
 
-/// Cell index and fraction along one axis of `n ≥ 2` equally spaced samples over [0, 1]:
-/// X = clamp(u, 0, 1)·(n − 1), i = min(⌊X⌋, n − 2), f = X − i (steps 7–9).
-#[inline]
-#[allow(clippy::manual_clamp)] // `clamp` would keep NaN; max-then-min maps it to 0.
-fn cell(u: f64, n: usize) -> (usize, f64) {
-    // Rounding can put a coordinate a hair outside [0, 1]; the tables end there.
-    // `max` first so that NaN becomes 0 instead of propagating into an index.
-    let x = u.max(0.0).min(1.0) * (n - 1) as f64;
-    let i = (x as usize).min(n - 2);
-    (i, x - i as f64)
+/// One axis of `n ≥ 2` equally spaced samples over [0, 1], with the constants of its cell
+/// lookup precomputed at load time.
+#[derive(Clone, Copy, Debug)]
+struct Axis {
+    /// n − 1 as f64: the number of cells.
+    cells: f64,
+    /// n − 2: the last cell's index.
+    last: u32,
+}
+
+impl Axis {
+    /// `n` is at least 2 and at most the file size / 4, so it fits in u32.
+    fn new(n: usize) -> Axis {
+        debug_assert!((2..=u32::MAX as usize).contains(&n));
+        Axis {
+            cells: (n - 1) as f64,
+            last: (n - 2) as u32,
+        }
+    }
+
+    /// Cell index and fraction: X = clamp(u, 0, 1)·(n − 1), i = min(⌊X⌋, n − 2), f = X − i
+    /// (steps 7–9).
+    #[inline]
+    fn cell(self, u: f64) -> (usize, f64) {
+        // Rounding can put a coordinate a hair outside [0, 1]; the tables end there.
+        let x = u.clamp(0.0, 1.0) * self.cells;
+        // x ≥ 0, so truncation is the floor (and a NaN, impossible for finite inputs,
+        // would become cell 0 rather than an out-of-range index).
+        let i = (x as u32).min(self.last);
+        (i as usize, x - i as f64)
+    }
 }
 
 /// a + t·(b − a), the spec's lerp.
@@ -89,32 +118,46 @@ fn lerp(a: f64, b: f64, t: f64) -> f64 {
 #[derive(Clone, Debug)]
 pub struct Grid2 {
     width: usize,
-    height: usize,
+    x: Axis,
+    y: Axis,
     data: Vec<f32>,
+    /// False when all rows are equal (the isotropic `ndf` and `sigma`): then y is irrelevant.
+    varies_along_y: bool,
 }
 
 impl Grid2 {
     /// `data` is row-major [height][width]; both sizes are at least 2 (checked by the caller).
     pub fn new(width: usize, height: usize, data: Vec<f32>) -> Grid2 {
         debug_assert!(width >= 2 && height >= 2 && data.len() == width * height);
+        let varies_along_y = data.chunks_exact(width).any(|row| row != &data[..width]);
         Grid2 {
             width,
-            height,
+            x: Axis::new(width),
+            y: Axis::new(height),
             data,
+            varies_along_y,
         }
+    }
+
+    /// Whether the value depends on y at all.
+    pub fn varies_along_y(&self) -> bool {
+        self.varies_along_y
     }
 
     /// Bilinear value at u = (x, y).
     #[inline]
     pub fn eval(&self, u: [f64; 2]) -> f64 {
-        let (i, fx) = cell(u[0], self.width);
-        let (j, fy) = cell(u[1], self.height);
-        let at = |y: usize, x: usize| self.data[y * self.width + x] as f64;
-        lerp(
-            lerp(at(j, i), at(j, i + 1), fx),
-            lerp(at(j + 1, i), at(j + 1, i + 1), fx),
-            fy,
-        )
+        let (i, fx) = self.x.cell(u[0]);
+        let row = |j: usize| {
+            let r = &self.data[j * self.width + i..][..2];
+            lerp(r[0] as f64, r[1] as f64, fx)
+        };
+        if !self.varies_along_y {
+            // Equal rows: lerp(a, a, fy) = a exactly, so row 0 alone is bit-identical.
+            return row(0);
+        }
+        let (j, fy) = self.y.cell(u[1]);
+        lerp(row(j), row(j + 1), fy)
     }
 }
 
@@ -125,6 +168,8 @@ impl Grid2 {
 pub struct VndfWarp {
     width: usize,
     height: usize,
+    x: Axis,
+    y: Axis,
     /// D_s[y][x], slice after slice.
     density: Vec<f32>,
     /// C_s[y][x], x < W − 1, slice after slice.
@@ -189,6 +234,8 @@ impl VndfWarp {
         Ok(VndfWarp {
             width,
             height,
+            x: Axis::new(width),
+            y: Axis::new(height),
             density,
             conditional_cdf,
             marginal_cdf,
@@ -200,18 +247,19 @@ impl VndfWarp {
     #[inline]
     pub fn invert(&self, u: [f64; 2], blend: &SliceBlend) -> [f64; 2] {
         let (w, h) = (self.width, self.height);
-        let (i, fx) = cell(u[0], w);
-        let (j, fy) = cell(u[1], h);
-        let d = |y: usize, x: usize| blend.blend(&self.density, w * h, y * w + x);
-        let c =
-            |y: usize, x: usize| blend.blend(&self.conditional_cdf, h * (w - 1), y * (w - 1) + x);
+        let (i, fx) = self.x.cell(u[0]);
+        let (j, fy) = self.y.cell(u[1]);
+        let (d0, d1) = blend.slices(&self.density, w * h);
+        let (c0s, c1s) = blend.slices(&self.conditional_cdf, h * (w - 1));
+        let d = |y: usize, x: usize| blend.mix(d0[y * w + x], d1[y * w + x]);
+        let c = |y: usize, x: usize| blend.mix(c0s[y * (w - 1) + x], c1s[y * (w - 1) + x]);
         let (v00, v10) = (d(j, i), d(j, i + 1));
         let (v01, v11) = (d(j + 1, i), d(j + 1, i + 1));
         // Density along the row at y, at the cell's two columns.
         let c0 = lerp(v00, v01, fy);
         let c1 = lerp(v10, v11, fy);
         // Integral over the partial cell, then the full cells to the left.
-        let mut sx = fx * lerp(c0, c1, fx / 2.0) / (w - 1) as f64;
+        let mut sx = fx * lerp(c0, c1, fx / 2.0) / self.x.cells;
         if i > 0 {
             sx += lerp(c(j, i - 1), c(j + 1, i - 1), fy);
         }
@@ -223,9 +271,10 @@ impl VndfWarp {
         // as any point and keeps NaN out of the lookup (never happens for measured files).
         sx = if row_total > 0.0 { sx / row_total } else { 0.0 };
         // Marginal: partial cell, then the CDF below (already normalised to end at 1).
-        let mut sy = fy * lerp(r0, r1, fy / 2.0) / (h - 1) as f64;
+        let mut sy = fy * lerp(r0, r1, fy / 2.0) / self.y.cells;
         if j > 0 {
-            sy += blend.blend(&self.marginal_cdf, h - 1, j - 1);
+            let (g0, g1) = blend.slices(&self.marginal_cdf, h - 1);
+            sy += blend.mix(g0[j - 1], g1[j - 1]);
         }
         [sx, sy]
     }
@@ -237,6 +286,8 @@ impl VndfWarp {
 pub struct ColourTables {
     width: usize,
     height: usize,
+    x: Axis,
+    y: Axis,
     channels: usize,
     data: Vec<f32>,
 }
@@ -264,6 +315,8 @@ impl ColourTables {
         ColourTables {
             width,
             height,
+            x: Axis::new(width),
+            y: Axis::new(height),
             channels,
             data,
         }
@@ -274,18 +327,25 @@ impl ColourTables {
     #[inline]
     pub fn lookup(&self, sample: [f64; 2], blend: &SliceBlend, out: &mut [f64]) {
         let (w, nc) = (self.width, self.channels);
-        let (i, fx) = cell(sample[0], w);
-        let (j, fy) = cell(sample[1], self.height);
-        let stride = w * self.height * nc;
-        let base00 = (j * w + i) * nc;
-        let base01 = ((j + 1) * w + i) * nc;
+        let (i, fx) = self.x.cell(sample[0]);
+        let (j, fy) = self.y.cell(sample[1]);
+        let (t0, t1) = blend.slices(&self.data, w * self.height * nc);
+        // Corners (i, j) and (i + 1, j) are adjacent, as are (i, j + 1) and (i + 1, j + 1).
+        let at = |y: usize| (y * w + i) * nc;
+        let ((a00, a10), (a01, a11)) = (corner_pair(t0, at(j), nc), corner_pair(t0, at(j + 1), nc));
+        let ((b00, b10), (b01, b11)) = (corner_pair(t1, at(j), nc), corner_pair(t1, at(j + 1), nc));
         for (ch, o) in out.iter_mut().enumerate().take(nc) {
-            let r = |base: usize| blend.blend(&self.data, stride, base + ch);
-            let bottom = lerp(r(base00), r(base00 + nc), fx);
-            let top = lerp(r(base01), r(base01 + nc), fx);
+            let bottom = lerp(blend.mix(a00[ch], b00[ch]), blend.mix(a10[ch], b10[ch]), fx);
+            let top = lerp(blend.mix(a01[ch], b01[ch]), blend.mix(a11[ch], b11[ch]), fx);
             *o = lerp(bottom, top, fy);
         }
     }
+}
+
+/// The channels of two horizontally adjacent grid points starting at `start`.
+#[inline]
+fn corner_pair(table: &[f32], start: usize, nc: usize) -> (&[f32], &[f32]) {
+    table[start..][..2 * nc].split_at(nc)
 }
 
 #[cfg(test)]
@@ -365,6 +425,27 @@ mod tests {
             assert!((s[0] - want).abs() < 1e-6, "{x}: {} vs {want}", s[0]);
             assert!((s[1] - 0.4).abs() < 1e-6);
         }
+    }
+
+    #[test]
+    fn grid_is_bilinear_and_clamped() {
+        // f(x, y) = 1 + 2x + 3y + 4xy on a 3×2 grid: bilinear interpolation reproduces it.
+        let f = |x: f64, y: f64| 1.0 + 2.0 * x + 3.0 * y + 4.0 * x * y;
+        let data: Vec<f32> = (0..2)
+            .flat_map(|y| (0..3).map(move |x| f(x as f64 / 2.0, y as f64) as f32))
+            .collect();
+        let g = Grid2::new(3, 2, data);
+        assert!(g.varies_along_y());
+        for &(x, y) in &[(0.0, 0.0), (0.3, 0.6), (0.5, 1.0), (1.0, 0.25), (0.9, 0.9)] {
+            assert!((g.eval([x, y]) - f(x, y)).abs() < 1e-6, "{x} {y}");
+        }
+        // Outside [0, 1]² the edge values are used.
+        assert_eq!(g.eval([-0.5, 2.0]), g.eval([0.0, 1.0]));
+        assert_eq!(g.eval([1.5, -1.0]), g.eval([1.0, 0.0]));
+        // Equal rows: y is ignored, with the same value as the full interpolation.
+        let flat = Grid2::new(3, 2, vec![1.0, 2.0, 4.0, 1.0, 2.0, 4.0]);
+        assert!(!flat.varies_along_y());
+        assert_eq!(flat.eval([0.75, 0.3]), 3.0);
     }
 
     #[test]
