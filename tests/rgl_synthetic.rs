@@ -272,6 +272,20 @@ fn horizon_and_below_give_zero_never_nan() {
         let mut out = [7.0; 3];
         bsdf.eval(wi, wo, &mut out);
         assert_eq!(out, [0.0; 3], "{wi:?} {wo:?}");
+        let mut cosine = [7.0; 3];
+        bsdf.eval_cosine(wi, wo, &mut cosine);
+        assert_eq!(cosine, [0.0; 3], "{wi:?} {wo:?}");
+    }
+    // eval_cosine is Mitsuba's eval, f_r·cos θo.
+    let wo = Vec3::from_spherical(1.1, 2.0);
+    let (mut f, mut fc) = ([0.0; 3], [0.0; 3]);
+    bsdf.eval(up, wo, &mut f);
+    bsdf.eval_cosine(up, wo, &mut fc);
+    for c in 0..3 {
+        assert!(
+            (f[c] * wo.z - fc[c]).abs() <= 1e-15 * fc[c].abs(),
+            "{f:?} {fc:?}"
+        );
     }
     // Grazing but above the horizon: finite, and f·cos θo stays finite as wo.z → 0.
     let mut out = [0.0; 3];

@@ -251,10 +251,16 @@ impl RglBsdf {
         &self.info.description
     }
 
-    /// Mitsuba's `eval` (f_r·cos θo) for unit `wi`, `wo` with wi.z, wo.z > 0, one value per
-    /// channel, without clamping. Steps 3–10 of the spec.
+    /// Mitsuba's `eval` (f_r·cos θo) for unit `wi`, `wo`, one value per channel, without
+    /// clamping. Steps 1–10 of the spec.
     #[inline]
     pub fn eval_cosine(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
+        // Step 1: one-sided. Comparing in f32 as Mitsuba does also sends z < 1.4e-45 (zero
+        // in f32) to 0, which keeps eval / wo.z finite; `!(z > 0)` catches NaN too.
+        if !((wi.z as f32) > 0.0 && (wo.z as f32) > 0.0 && wi.is_finite() && wo.is_finite()) {
+            out.fill(0.0);
+            return;
+        }
         // Step 2 (reduction folding) applies to anisotropic files only; they are refused.
         // Step 3: the half vector (wi.z + wo.z > 0, so the sum is never zero).
         let m = (wi + wo) * (1.0 / (wi + wo).length());
@@ -293,14 +299,12 @@ impl Brdf for RglBsdf {
     }
 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
-        // Step 1: one-sided. Comparing in f32 as Mitsuba does also sends z < 1.4e-45 (zero
-        // in f32) to 0, which keeps eval / wo.z finite; `!(z > 0)` catches NaN too.
-        if !((wi.z as f32) > 0.0 && (wo.z as f32) > 0.0 && wi.is_finite() && wo.is_finite()) {
-            out.fill(0.0);
-            return;
-        }
         self.eval_cosine(wi, wo, out);
         // f_r = eval / cos θo: Mitsuba's eval carries the cosine of wo (spec, "Cosine").
+        // Below the horizon eval_cosine wrote zeros; the division must not turn them into NaN.
+        if !((wi.z as f32) > 0.0 && (wo.z as f32) > 0.0) {
+            return;
+        }
         let inv_cos_o = 1.0 / wo.z;
         for o in out.iter_mut() {
             *o *= inv_cos_o;
