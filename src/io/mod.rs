@@ -1,4 +1,5 @@
-//! File formats and output handling.
+//! File formats (native, RGL, ...) and output handling.
 
 pub mod atomic;
 pub mod native;
+pub mod rgl;
