@@ -4,6 +4,8 @@
 //! below (`Model::parse`, `Model::from_json`, `Model::to_json`, `Model::check_tabulable`,
 //! `Model::default_material`, `impl Brdf for Model`) is the contract the rest of the crate uses.
 
+pub mod htsg;
+
 use crate::brdf::{Brdf, Channels};
 use crate::geometry::Vec3;
 use crate::math::FRAC_1_PI;
