@@ -77,6 +77,7 @@ struct FixtureReport {
     worst_rel: f64,
     worst_case: String,
     max_terms: usize,
+    worst_specular_rel: f64,
 }
 
 /// Checks every line of a fixture file within its `tol`; returns the worst relative error.
@@ -86,6 +87,7 @@ fn check_fixture_file(text: &str) -> FixtureReport {
         worst_rel: 0.0,
         worst_case: String::new(),
         max_terms: 0,
+        worst_specular_rel: 0.0,
     };
     let mut model_key = String::new();
     let mut model: Option<Htsg> = None;
@@ -129,6 +131,22 @@ fn check_fixture_file(text: &str) -> FixtureReport {
                 ));
             }
         }
+        // Self-made lines also carry the specular coefficient of wi.
+        if let Some(spec) = v.get("specular_wi").and_then(Value::as_array) {
+            let got = m.specular_coefficient(vec3(&v["wi"]));
+            for (c, (g, f)) in got.iter().zip(spec).enumerate() {
+                let f = f.as_f64().unwrap();
+                let rel = (g - f).abs() / f.abs().max(1e-300);
+                rep.worst_specular_rel = rep.worst_specular_rel.max(rel);
+                if (g - f).abs() > tol * f.abs().max(1e-300) || g.is_nan() {
+                    failures.push(format!(
+                        "line {} ({}) specular ch {c}: got {g:e} want {f:e}",
+                        n + 1,
+                        v["case"]
+                    ));
+                }
+            }
+        }
         rep.lines += 1;
     }
     assert!(
@@ -168,8 +186,9 @@ fn selfmade_fixture_htsg_all_lines_within_tol() {
     // The file includes rough surfaces: the series must have been summed far.
     assert!(rep.max_terms > 1000, "max terms {}", rep.max_terms);
     println!(
-        "htsg-selfmade.jsonl: {} lines, worst relative error {:e} at {}, max terms {}",
-        rep.lines, rep.worst_rel, rep.worst_case, rep.max_terms
+        "htsg-selfmade.jsonl: {} lines, worst relative error {:e} at {}, max terms {}; \
+         specular coefficient worst {:e}",
+        rep.lines, rep.worst_rel, rep.worst_case, rep.max_terms, rep.worst_specular_rel
     );
 }
 
@@ -355,6 +374,48 @@ fn hard_directions_give_finite_values() {
             assert_eq!(out, [0.0; 4]);
         }
     }
+}
+
+/// The limits of the accepted ranges (σ0 = 100 µm: ~2·10⁵ terms per channel at λ = 0.1 µm;
+/// τ = 1000 µm: the series' mode pushed far beyond g): finite, non-negative, reciprocal.
+#[test]
+fn accepted_range_limits_are_finite() {
+    let dirs = [
+        Vec3::Z,
+        Vec3::from_spherical(0.3, 0.0),
+        Vec3::from_spherical(0.3, PI),
+        Vec3::from_spherical(1.2, 2.0),
+        Vec3::new(0.0, 1.0, 1e-9),
+    ];
+    let mut max_terms = 0;
+    for &(sigma0, tau) in &[(100.0, 3.0), (0.5, 1000.0), (100.0, 1000.0)] {
+        let m = Htsg::new(HtsgParams {
+            sigma0_um: sigma0,
+            tau_um: tau,
+            eta_re: vec![1.5, 0.2],
+            eta_im: vec![0.0, 3.9],
+            wavelengths_um: vec![0.1, 100.0],
+            uniform_diffuse: vec![0.0, 0.0],
+        })
+        .unwrap();
+        for &wi in &dirs {
+            for &wo in &dirs {
+                let mut a = [0.0; 2];
+                let mut b = [0.0; 2];
+                max_terms = max_terms.max(m.eval_with_stats(wi, wo, &mut a).max_terms);
+                m.eval(wo, wi, &mut b);
+                for c in 0..2 {
+                    assert!(
+                        a[c].is_finite() && a[c] >= 0.0,
+                        "{sigma0} {tau} {wi:?} {wo:?} {a:?}"
+                    );
+                    assert!((a[c] - b[c]).abs() <= 1e-12 * a[c], "{a:?} {b:?}");
+                }
+            }
+        }
+    }
+    println!("range limits: max terms {max_terms}");
+    assert!(max_terms > 100_000);
 }
 
 /// CPU time of this thread in ns from /proc/thread-self/schedstat (the machine is shared,

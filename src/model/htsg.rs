@@ -466,6 +466,9 @@ const RATIO_BLOCK: usize = 8;
 /// Largest δ = T/(m(m+1)) for which e^δ is taken from its degree-8 Taylor polynomial
 /// (remainder < δ⁹/9! · e^δ < 1e-19, far below an ulp) instead of a libm call.
 const EXP_TAYLOR_MAX: f64 = 1.0 / 32.0;
+/// Largest δ for the degree-3 polynomial (remainder < δ⁴/4! · e^δ < 1e-17): the common case
+/// for rough surfaces, where m is in the thousands and δ ≤ T/m² is tiny.
+const EXP_TAYLOR3_MAX: f64 = 1.0 / 8192.0;
 
 /// The term ratio r_m = t_{m+1}/t_m = g m/(m+1)² · exp(T/(m(m+1))).
 struct TermRatio {
@@ -493,40 +496,62 @@ impl TermRatio {
     /// out[j] = 1/r_{m−j}. Indices below 1 (past the series' start) get unused filler.
     #[inline]
     fn fill(&self, m: f64, inverse: bool, out: &mut [f64; RATIO_BLOCK]) {
-        let step = if inverse { -1.0 } else { 1.0 };
         let last = RATIO_BLOCK as f64 - 1.0;
         let m_min = if inverse { m - last } else { m }.max(1.0);
+        // δ = T/(m(m+1)) is largest at the block's smallest m.
         let delta_max = self.t / (m_min * (m_min + 1.0));
-        if self.g_is_normal && delta_max <= EXP_TAYLOR_MAX {
+        if !self.g_is_normal || delta_max > EXP_TAYLOR_MAX {
+            self.fill_exact(m, inverse, out);
+        } else if delta_max == 0.0 {
+            self.fill_taylor::<0>(m, inverse, out);
+        } else if delta_max <= EXP_TAYLOR3_MAX {
+            self.fill_taylor::<3>(m, inverse, out);
+        } else {
+            self.fill_taylor::<8>(m, inverse, out);
+        }
+    }
+
+    /// The block with e^{±δ} from its degree-N Taylor polynomial; N is chosen by `fill` so
+    /// that the remainder is below SERIES_REL_EPS.
+    #[inline]
+    fn fill_taylor<const N: usize>(&self, m: f64, inverse: bool, out: &mut [f64; RATIO_BLOCK]) {
+        if inverse {
             for (j, o) in out.iter_mut().enumerate() {
                 // Filler for indices below 1: m = 1 keeps the arithmetic finite.
-                let mj = (m + step * j as f64).max(1.0);
+                let mj = (m - j as f64).max(1.0);
                 let m1 = mj + 1.0;
-                if inverse {
-                    // 1/r = (m+1)²/(g m) · e^{−δ}, with p = 1/(m(m+1)): (m+1)²/m = (m+1)³p.
-                    let p = 1.0 / (mj * m1);
-                    *o = self.inv_g * m1 * m1 * m1 * p * exp_taylor(-self.t * p);
-                } else {
-                    // r = g m/(m+1)² · e^{δ}, with p = 1/(m(m+1)²): m/(m+1)² = m²p, δ = T(m+1)p.
-                    let p = 1.0 / (mj * m1 * m1);
-                    *o = self.g * mj * mj * p * exp_taylor(self.t * m1 * p);
-                }
+                // 1/r = (m+1)²/(g m) · e^{−δ}, with p = 1/(m(m+1)): (m+1)²/m = (m+1)³p.
+                let p = 1.0 / (mj * m1);
+                *o = self.inv_g * m1 * m1 * m1 * p * exp_taylor::<N>(-self.t * p);
             }
         } else {
-            // Large δ (small m, large T) or extreme g: the full exponential, in log form.
             for (j, o) in out.iter_mut().enumerate() {
-                let mj = (m + step * j as f64).max(1.0);
+                let mj = m + j as f64;
                 let m1 = mj + 1.0;
-                let ln_r = self.ln_g + self.t / (mj * m1) + (mj / (m1 * m1)).ln();
-                *o = if inverse { (-ln_r).exp() } else { ln_r.exp() };
+                // r = g m/(m+1)² · e^{δ}, with p = 1/(m(m+1)²): m/(m+1)² = m²p, δ = T(m+1)p.
+                let p = 1.0 / (mj * m1 * m1);
+                *o = self.g * mj * mj * p * exp_taylor::<N>(self.t * m1 * p);
             }
+        }
+    }
+
+    /// The block by the full exponential in log form: large δ (small m, large T) or a g
+    /// whose product form would overflow or underflow.
+    fn fill_exact(&self, m: f64, inverse: bool, out: &mut [f64; RATIO_BLOCK]) {
+        let step = if inverse { -1.0 } else { 1.0 };
+        for (j, o) in out.iter_mut().enumerate() {
+            // Filler for indices below 1: m = 1 keeps the arithmetic finite.
+            let mj = (m + step * j as f64).max(1.0);
+            let m1 = mj + 1.0;
+            let ln_r = self.ln_g + self.t / (mj * m1) + (mj / (m1 * m1)).ln();
+            *o = if inverse { (-ln_r).exp() } else { ln_r.exp() };
         }
     }
 }
 
-/// e^d for |d| ≤ EXP_TAYLOR_MAX: Σ_{k≤8} d^k/k! by Horner.
+/// e^d ≈ Σ_{k≤N} d^k/k! by Horner, for the small |d| that `TermRatio::fill` allows.
 #[inline]
-fn exp_taylor(d: f64) -> f64 {
+fn exp_taylor<const N: usize>(d: f64) -> f64 {
     const C: [f64; 9] = [
         1.0,
         1.0,
@@ -539,8 +564,8 @@ fn exp_taylor(d: f64) -> f64 {
         1.0 / 40320.0,
     ];
     // Plain multiply-add, not f64::mul_add: without a target FMA feature that is a libm call.
-    let mut acc = C[8];
-    for &c in C[..8].iter().rev() {
+    let mut acc = C[N];
+    for &c in C[..N].iter().rev() {
         acc = acc * d + c;
     }
     acc
