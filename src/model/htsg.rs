@@ -383,7 +383,9 @@ impl DiffuseSeries {
     /// (Loader's saddle-point form of the Poisson term, no lgamma cancellation), then walk
     /// outwards in both directions with t scaled to t_{m0} = 1. Past the mode on either side
     /// the remaining terms are bounded by a geometric series of the current ratio, and the
-    /// walk stops when that bound is below SERIES_REL_EPS of the partial sum.
+    /// walk stops when that bound is below SERIES_REL_EPS of the partial sum. Every
+    /// REANCHOR_EVERY terms the running product is re-evaluated directly, so rounding does
+    /// not grow with the number of terms (docs/htsg.md has the bound and the checks).
     pub fn sum(ln_g: f64, t: f64) -> DiffuseSeries {
         if ln_g == f64::NEG_INFINITY {
             // g = 0 (σ underflowed): every term is 0.
