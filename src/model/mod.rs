@@ -38,6 +38,8 @@ pub use sum::Sum;
 pub use torrance_sparrow::TorranceSparrow;
 pub use ward::{Ward, WardVariant};
 
+pub mod htsg;
+
 use crate::brdf::{Brdf, Channels};
 use crate::geometry::Vec3;
 use crate::{Error, Result};
