@@ -11,6 +11,8 @@ pub mod error;
 pub mod geometry;
 pub mod math;
 pub mod model;
+pub mod props;
+pub mod source;
 
 pub use error::{Error, Result};
 
