@@ -401,6 +401,44 @@ pub struct PropsReport {
     /// Albedo at [`albedo_angles_deg`] for φi = 0 (and φi = 90° for anisotropic sources).
     pub albedo: Vec<AlbedoRow>,
     pub energy: Energy,
+    /// The properties that fail, one sentence each (empty: all pass): non-finite or negative
+    /// values, a promised symmetry that does not hold, energy not conserved.
+    pub failures: Vec<String>,
+}
+
+impl PropsReport {
+    fn collect_failures(&mut self) {
+        let mut out = Vec::new();
+        let p = &self.positivity;
+        if p.nonfinite > 0 {
+            out.push(format!("{} non-finite values", p.nonfinite));
+        }
+        if p.negative > 0 {
+            out.push(format!(
+                "{} negative values (min {:e})",
+                p.negative, p.min_value
+            ));
+        }
+        for (name, s) in [
+            ("reciprocal", &self.reciprocity),
+            ("isotropic", &self.isotropy),
+        ] {
+            if s.promised && !s.holds {
+                out.push(format!(
+                    "promised {name} but the relative difference reaches {:e}",
+                    s.max_rel_diff
+                ));
+            }
+        }
+        let e = &self.energy;
+        if !e.conserves {
+            out.push(format!(
+                "albedo {} > 1 + {:e} at θi {}°, φi {}°",
+                e.max_albedo, e.tolerance, e.at_theta_i_deg, e.at_phi_i_deg
+            ));
+        }
+        self.failures = out;
+    }
 }
 
 /// Uniform in solid angle over the upper hemisphere (z = u1 by Archimedes' theorem).
@@ -449,13 +487,15 @@ fn hard_case_pairs() -> Vec<(Vec3, Vec3)> {
 /// Positivity, reciprocity, isotropy and albedo of `brdf` (see [`PropsReport`]).
 pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
     let nc = brdf.channels().len();
-    let mut rng = SplitMix64::new(options.seed);
-    let random_pairs: Vec<(Vec3, Vec3)> = (0..options.samples)
-        .map(|_| (uniform_hemisphere(&mut rng), uniform_hemisphere(&mut rng)))
-        .collect();
-    let rotations: Vec<f64> = (0..options.samples)
-        .map(|_| 2.0 * PI * rng.next_f64())
-        .collect();
+    // The random pairs are drawn again for each pass (same seed, same pairs) so that memory
+    // does not grow with `samples`.
+    let random_pairs = || {
+        let mut rng = SplitMix64::new(options.seed);
+        (0..options.samples).map(move |_| {
+            let wi = uniform_hemisphere(&mut rng);
+            (wi, uniform_hemisphere(&mut rng))
+        })
+    };
 
     // Positivity over random and hard-case pairs.
     let mut f = vec![0.0; nc];
@@ -468,11 +508,9 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
         nonfinite: 0,
     };
     let mut f_max = 0.0f64;
-    for (k, &(wi, wo)) in random_pairs
-        .iter()
-        .chain(hard_case_pairs().iter())
-        .enumerate()
-    {
+    let tagged_random = random_pairs().map(|p| (p, true));
+    let tagged_hard = hard_case_pairs().into_iter().map(|p| (p, false));
+    for ((wi, wo), is_random) in tagged_random.chain(tagged_hard) {
         brdf.eval(wi, wo, &mut f);
         pos.pairs += 1;
         for &v in &f {
@@ -480,7 +518,7 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
                 pos.nonfinite += 1;
                 continue;
             }
-            if k < random_pairs.len() {
+            if is_random {
                 // The floor's scale comes from the random pairs only: a hard-case pair at
                 // the horizon can reach 1e24 and would hide every asymmetry below it.
                 f_max = f_max.max(v.abs());
@@ -509,7 +547,7 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
         worst_rotation_deg: None,
         holds: true,
     };
-    for &(wi, wo) in &random_pairs {
+    for (wi, wo) in random_pairs() {
         brdf.eval(wi, wo, &mut f);
         brdf.eval(wo, wi, &mut g);
         let d = max_rel_diff(&f, &g, floor);
@@ -529,7 +567,10 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
         worst_rotation_deg: Some(0.0),
         holds: true,
     };
-    for (&(wi, wo), &angle) in random_pairs.iter().zip(&rotations) {
+    // The rotation angles come from a second stream so the pairs stay those of the seed.
+    let mut angle_rng = SplitMix64::new(options.seed ^ 0x0005_EED0_FA11_A9E5);
+    for (wi, wo) in random_pairs() {
+        let angle = 2.0 * PI * angle_rng.next_f64();
         brdf.eval(wi, wo, &mut f);
         brdf.eval(wi.rotate_z(angle), wo.rotate_z(angle), &mut g);
         let d = max_rel_diff(&f, &g, floor);
@@ -585,7 +626,7 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
     }
     energy.conserves = energy.max_albedo <= 1.0 + energy.tolerance;
 
-    PropsReport {
+    let mut report = PropsReport {
         source: brdf.describe(),
         channels: brdf.channels().names().to_vec(),
         seed: options.seed,
@@ -595,7 +636,10 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
         isotropy: iso,
         albedo,
         energy,
-    }
+        failures: Vec::new(),
+    };
+    report.collect_failures();
+    report
 }
 
 /// max over channels of |a − b| / max(|a|, |b|, floor); a non-finite value counts as a

@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 use std::io::Write;
 
 mod eval;
+mod props;
 
 /// brdfpack: turn BRDFs into compact tables and back.
 #[derive(Parser, Debug)]
@@ -18,6 +19,8 @@ pub struct Cli {
 enum Command {
     /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
     Eval(eval::EvalArgs),
+    /// Report positivity, reciprocity, isotropy and directional albedo of a model or table.
+    Props(props::PropsArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -32,6 +35,7 @@ pub fn main() -> i32 {
     };
     let result = match cli.command {
         Command::Eval(a) => eval::run(a),
+        Command::Props(a) => props::run(a),
     };
     match result {
         Ok(code) => code,
