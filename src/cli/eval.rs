@@ -7,7 +7,7 @@ use crate::{Error, Result};
 use clap::{Args, ValueEnum};
 use std::io::{BufRead, BufWriter, Read, Write};
 
-const LONG_ABOUT: &str = "\
+pub(crate) const LONG_ABOUT: &str = "\
 Evaluate a model or table at direction pairs: the BRDF f_r in 1/sr (no cosine factor), in the
 local frame (z = normal, x = tangent), wi towards the light and wo towards the viewer, both
 pointing away from the surface. Directions below the horizon give 0.
@@ -55,7 +55,6 @@ pub enum OutputFormat {
 }
 
 #[derive(Args, Debug)]
-#[command(long_about = LONG_ABOUT)]
 pub struct EvalArgs {
     /// Model spec (`lambert:albedo=0.5`, inline JSON `{...}`, `@model.json`) or table file.
     pub source: String,

@@ -18,8 +18,10 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
+    #[command(long_about = eval::LONG_ABOUT)]
     Eval(eval::EvalArgs),
     /// Report positivity, reciprocity, isotropy and directional albedo of a model or table.
+    #[command(long_about = props::LONG_ABOUT)]
     Props(props::PropsArgs),
 }
 

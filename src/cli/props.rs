@@ -4,7 +4,7 @@ use crate::props::{PropsOptions, PropsReport, Symmetry, props};
 use clap::Args;
 use std::io::Write;
 
-const LONG_ABOUT: &str = "\
+pub(crate) const LONG_ABOUT: &str = "\
 Report the physical properties of a model or table:
   positivity   smallest value, counts of negative and non-finite values over the random
                pairs and the hard cases of spec/hard-cases.md (horizon, normal, mirror, ...)
@@ -20,7 +20,6 @@ Exit status: 0 when every property holds, 1 when one fails (non-finite or negati
 reciprocity or isotropy the source promises but does not have, albedo above 1), 2 on bad input.";
 
 #[derive(Args, Debug)]
-#[command(long_about = LONG_ABOUT)]
 pub struct PropsArgs {
     /// Model spec (`lambert:albedo=0.5`, inline JSON `{...}`, `@model.json`) or table file.
     pub source: String,
