@@ -95,7 +95,7 @@ pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
     let cand = Source::open(&a.candidate)?;
     let cells = match &cand {
         Source::Table(t) => Some((t.grid().clone(), t.valid().to_vec())),
-        Source::Model(_) => None,
+        Source::Model(_) | Source::Measured(_) => None,
     };
     let cand = cand.into_brdf(a.interp)?;
     let reference = Source::open(&a.against)?.into_brdf(a.interp)?;

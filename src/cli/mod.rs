@@ -9,6 +9,7 @@ mod common;
 mod eval;
 mod models;
 mod pack;
+mod props;
 mod tabulate;
 
 /// brdfpack: turn BRDFs into compact tables and back.
@@ -22,6 +23,7 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
+    #[command(long_about = eval::LONG_ABOUT)]
     Eval(eval::EvalArgs),
     /// Sample a model (or table) onto a grid and write the table.
     Tabulate(tabulate::TabulateArgs),
@@ -31,6 +33,9 @@ enum Command {
     Pack(pack::PackArgs),
     /// List the analytic models with their parameters, defaults, ranges and properties.
     Models(models::ModelsArgs),
+    /// Report positivity, reciprocity, isotropy and directional albedo of a model or table.
+    #[command(long_about = props::LONG_ABOUT)]
+    Props(props::PropsArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -49,6 +54,7 @@ pub fn main() -> i32 {
         Command::Check(a) => check::run(a),
         Command::Pack(a) => pack::run(a),
         Command::Models(a) => models::run(a),
+        Command::Props(a) => props::run(a),
     };
     match result {
         Ok(code) => code,
