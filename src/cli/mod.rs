@@ -6,8 +6,10 @@ use std::io::Write;
 
 mod check;
 mod common;
+mod convert;
 mod eval;
 mod models;
+mod inspect;
 mod pack;
 mod tabulate;
 
@@ -31,6 +33,11 @@ enum Command {
     Pack(pack::PackArgs),
     /// List the analytic models with their parameters, defaults, ranges and properties.
     Models(models::ModelsArgs),
+    /// Convert a table (native .bpk, brdfpack .exr, MERL .binary) or a model to another
+    /// format or grid; re-grids by interpolation when the grid changes.
+    Convert(convert::ConvertArgs),
+    /// Describe a table file: format, grid, channels, provenance, value statistics.
+    Inspect(inspect::InspectArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -49,6 +56,8 @@ pub fn main() -> i32 {
         Command::Check(a) => check::run(a),
         Command::Pack(a) => pack::run(a),
         Command::Models(a) => models::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Inspect(a) => inspect::run(a),
     };
     match result {
         Ok(code) => code,

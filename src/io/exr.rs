@@ -114,7 +114,6 @@ pub fn value_channel(name: &str) -> String {
     format!("brdf.{name}")
 }
 
-
 /// Encodes a table as an EXR image.
 pub fn to_bytes(table: &Table, opts: &ExrOptions) -> Result<Vec<u8>> {
     let grid = table.grid();
@@ -198,18 +197,25 @@ pub fn to_bytes(table: &Table, opts: &ExrOptions) -> Result<Vec<u8>> {
             list.push(channel(&format!("f64lo.{name}"), FlatSamples::U32(lo))?);
         }
     }
-    let mut attributes = LayerAttributes::default();
-    attributes.software_name = Some(text("software", TOOL_VERSION)?);
-    attributes.comments = Some(text(
-        "comments",
-        &format!(
-            "BRDF table (f_r in 1/sr) on grid {}; see the brdfpack attribute",
-            grid.describe()
-        ),
-    )?);
-    attributes
-        .other
-        .insert(text("attribute", ATTRIBUTE)?, AttributeValue::Text(text("header", &json)?));
+    let mut other = std::collections::HashMap::new();
+    // One custom attribute only: the writer emits custom attributes in HashMap order, so a
+    // second one would make the bytes differ between runs.
+    other.insert(
+        text("attribute", ATTRIBUTE)?,
+        AttributeValue::Text(text("header", &json)?),
+    );
+    let attributes = LayerAttributes {
+        software_name: Some(text("software", TOOL_VERSION)?),
+        comments: Some(text(
+            "comments",
+            &format!(
+                "BRDF table (f_r in 1/sr) on grid {}; see the brdfpack attribute",
+                grid.describe()
+            ),
+        )?),
+        other,
+        ..LayerAttributes::default()
+    };
     let encoding = Encoding {
         compression: opts.compression.to_exr(),
         blocks: Blocks::ScanLines,
@@ -459,10 +465,13 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     let scale = desc.scale().map_err(|e| bad(e.to_string()))?;
     let mut raw = vec![0f64; cells * nch];
     for (k, name) in channels.names().iter().enumerate() {
-        let (FlatSamples::U32(hi), FlatSamples::U32(lo)) =
-            (find(&format!("f64hi.{name}"))?, find(&format!("f64lo.{name}"))?)
-        else {
-            return Err(bad(format!("channels f64hi.{name} / f64lo.{name} are not u32")));
+        let (FlatSamples::U32(hi), FlatSamples::U32(lo)) = (
+            find(&format!("f64hi.{name}"))?,
+            find(&format!("f64lo.{name}"))?,
+        ) else {
+            return Err(bad(format!(
+                "channels f64hi.{name} / f64lo.{name} are not u32"
+            )));
         };
         for cell in 0..cells {
             raw[cell * nch + k] = f64::from_bits((hi[cell] as u64) << 32 | lo[cell] as u64);

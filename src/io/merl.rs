@@ -192,9 +192,12 @@ impl MerlTable {
         }
         let n = table.grid().cells();
         let mut raw = vec![0f64; 3 * n];
-        let same_scale = table
-            .exact()
-            .filter(|e| e.scale.iter().zip(SCALE).all(|(a, b)| a.to_bits() == b.to_bits()));
+        let same_scale = table.exact().filter(|e| {
+            e.scale
+                .iter()
+                .zip(SCALE)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        });
         for cell in 0..n {
             for c in 0..3 {
                 raw[c * n + cell] = if let Some(e) = same_scale {
@@ -434,7 +437,13 @@ mod tests {
     fn small(dims: [usize; 3]) -> MerlTable {
         let n: usize = dims.iter().product();
         let raw = (0..3 * n)
-            .map(|i| if i % 7 == 3 { -1.0 } else { i as f64 * 0.37 + 0.1 })
+            .map(|i| {
+                if i % 7 == 3 {
+                    -1.0
+                } else {
+                    i as f64 * 0.37 + 0.1
+                }
+            })
             .collect();
         MerlTable { dims, raw }
     }
@@ -480,7 +489,10 @@ mod tests {
         let mut nan = bytes.clone();
         nan[12 + 8 * 130..12 + 8 * 131].copy_from_slice(&f64::NAN.to_le_bytes());
         let e = MerlTable::from_bytes(&nan, p).unwrap_err().to_string();
-        assert!(e.contains("value 130 (channel green, cell 10) is NaN"), "{e}");
+        assert!(
+            e.contains("value 130 (channel green, cell 10) is NaN"),
+            "{e}"
+        );
         assert!(MerlTable::from_bytes(&bytes[..5], p).is_err());
     }
 
