@@ -103,8 +103,8 @@ fn read_then_write_reproduces_the_file_byte_for_byte() {
         let stored = MerlTable::from_bytes(&bytes, &f).unwrap();
         let n = stored.cells();
         for cell in (0..n).step_by(997) {
-            for c in 0..3 {
-                let want = (stored.raw[c * n + cell] * SCALE[c]) as f32;
+            for (c, scale) in SCALE.iter().enumerate() {
+                let want = (stored.raw[c * n + cell] * scale) as f32;
                 if t.valid()[cell] {
                     assert_eq!(t.cell(cell)[c].to_bits(), want.to_bits());
                 } else {
