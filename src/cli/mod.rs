@@ -8,8 +8,8 @@ mod check;
 mod common;
 mod convert;
 mod eval;
-mod models;
 mod inspect;
+mod models;
 mod pack;
 mod tabulate;
 
