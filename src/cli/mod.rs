@@ -6,7 +6,9 @@ use std::io::Write;
 
 mod check;
 mod common;
+mod convert;
 mod eval;
+mod inspect;
 mod models;
 mod pack;
 mod props;
@@ -36,6 +38,11 @@ enum Command {
     /// Report positivity, reciprocity, isotropy and directional albedo of a model or table.
     #[command(long_about = props::LONG_ABOUT)]
     Props(props::PropsArgs),
+    /// Convert a table (native .bpk, brdfpack .exr, MERL .binary) or a model to another
+    /// format or grid; re-grids by interpolation when the grid changes.
+    Convert(convert::ConvertArgs),
+    /// Describe a table file: format, grid, channels, provenance, value statistics.
+    Inspect(inspect::InspectArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -55,6 +62,8 @@ pub fn main() -> i32 {
         Command::Pack(a) => pack::run(a),
         Command::Models(a) => models::run(a),
         Command::Props(a) => props::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Inspect(a) => inspect::run(a),
     };
     match result {
         Ok(code) => code,
