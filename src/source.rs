@@ -1,13 +1,26 @@
-//! Opening a BRDF source named on the command line: a table file (native), a measured file
-//! (RGL `.bsdf`), or an analytic model spec (`Model::parse`: shell form, inline JSON or
-//! `@file.json`). A name that exists as a file (or `-` for stdin) is read as a file.
+//! Opening a BRDF source named on the command line: a table file (native `.bpk`, EXR, MERL
+//! `.binary`), a measured file (RGL `.bsdf`), or an analytic model spec (`Model::parse`: shell
+//! form, inline JSON or `@file.json`). A name that exists as a file (or `-` for stdin) is read
+//! as a file, recognised by its content.
 
 use crate::brdf::Brdf;
-use crate::io::{atomic, native, rgl::RglBsdf};
+use crate::io::{self, Format, atomic, merl::MerlLookup, rgl::RglBsdf};
 use crate::model::Model;
 use crate::table::{Interp, InterpolatedTable, Table};
 use crate::{Error, Result};
 use std::path::Path;
+
+/// How a table source is evaluated between its samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Lookup {
+    /// Multilinear in warped index space (docs/parameterizations.md).
+    #[default]
+    Linear,
+    /// The nearest sample.
+    Nearest,
+    /// The MERL reference reader's nearest-lower-bin rule, exactly (MERL-grid tables only).
+    Merl,
+}
 
 /// A source opened from a name.
 // One value per command: the size difference between variants costs nothing.
@@ -24,28 +37,45 @@ impl Source {
         let path = Path::new(spec);
         if spec == "-" || path.is_file() {
             let bytes = atomic::read_input(path)?;
-            if native::is_native(&bytes) {
-                return Ok(Source::Table(native::from_bytes(&bytes, path)?));
-            }
-            if bytes.starts_with(b"tensor_file\0") {
-                return Ok(Source::Measured(RglBsdf::from_bytes(
+            return match io::detect(&bytes, path) {
+                Format::Rgl => Ok(Source::Measured(RglBsdf::from_bytes(
                     &bytes,
                     &path.display().to_string(),
-                )?));
-            }
-            return Err(Error::invalid_file(
-                path,
-                "not a recognised format (expected a brdfpack .bpk table or an RGL .bsdf file)",
-            ));
+                )?)),
+                _ => Ok(Source::Table(io::decode_table(&bytes, path)?)),
+            };
         }
-        Ok(Source::Model(Model::parse(spec)?))
+        match Model::parse(spec) {
+            Ok(m) => Ok(Source::Model(m)),
+            // A name that looks like a file but is none: say so rather than "unknown model".
+            Err(_) if io::FormatName::from_path(path).is_some() || spec.contains('/') => {
+                Err(Error::io(
+                    path,
+                    std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+                ))
+            }
+            Err(e) => Err(e),
+        }
     }
 
-    /// The source as a pointwise BRDF; tables are interpolated by `interp`. Errors for a
-    /// model without pointwise values (a Dirac delta such as `mirror`).
-    pub fn into_brdf(self, interp: Interp) -> Result<Box<dyn Brdf>> {
+    /// The source as a pointwise BRDF; tables are evaluated by `lookup`. Errors for a
+    /// model without pointwise values (a Dirac delta such as `mirror`), and for `merl`
+    /// lookups of a table that is not on a MERL grid.
+    pub fn into_brdf(self, lookup: Lookup) -> Result<Box<dyn Brdf>> {
+        let interp = match lookup {
+            Lookup::Nearest => Interp::Nearest,
+            Lookup::Linear | Lookup::Merl => Interp::Linear,
+        };
         Ok(match self {
+            Source::Table(table) if lookup == Lookup::Merl => {
+                Box::new(MerlLookup::from_table(&table)?)
+            }
             Source::Table(table) => Box::new(InterpolatedTable { table, interp }),
+            _ if lookup == Lookup::Merl => {
+                return Err(Error::input(
+                    "--interp merl applies to MERL-grid tables only (this source is not a table)",
+                ));
+            }
             Source::Measured(m) => Box::new(m),
             Source::Model(m) => {
                 m.check_tabulable()?;
@@ -57,7 +87,7 @@ impl Source {
 
 /// Opens `spec` as a BRDF that can be evaluated pointwise (tables: linear interpolation).
 pub fn open_brdf(spec: &str) -> Result<Box<dyn Brdf>> {
-    Source::open(spec)?.into_brdf(Interp::Linear)
+    Source::open(spec)?.into_brdf(Lookup::Linear)
 }
 
 #[cfg(test)]

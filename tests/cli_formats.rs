@@ -66,7 +66,7 @@ fn merl_survives_exr_and_native_round_trips_through_the_cli() {
 }
 
 #[test]
-fn output_to_stdout_needs_a_format_and_matches_the_file() {
+fn output_to_stdout_matches_the_file() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("m.exr");
     convert(&["--grid", "halfdiff3:4x4x8"], MODEL, &file);
@@ -92,8 +92,17 @@ fn output_to_stdout_needs_a_format_and_matches_the_file() {
         .assert()
         .success()
         .stdout(predicate::str::contains("format: exr"));
-    brdfpack()
+    // Without --format, stdout gets the native format.
+    let native = brdfpack()
         .args(["convert", MODEL, "-o", "-"])
+        .output()
+        .unwrap();
+    assert!(native.status.success());
+    assert!(native.stdout.starts_with(b"\x89BPK"));
+    // A name with no known extension needs --format.
+    brdfpack()
+        .args(["convert", MODEL, "-o"])
+        .arg(d.path().join("out.dat"))
         .assert()
         .code(2)
         .stderr(predicate::str::contains("--format"));

@@ -56,8 +56,14 @@ pub enum OutputFormat {
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// Model spec (`lambert:albedo=0.5`, inline JSON `{...}`, `@model.json`) or table file.
+    /// Model spec (`lambert:albedo=0.5`, inline JSON `{...}`, `@model.json`), table file
+    /// (.bpk, .exr, MERL .binary) or RGL .bsdf file.
     pub source: String,
+
+    /// How a table is evaluated between samples: linear, nearest, or merl (the MERL reference
+    /// reader's nearest-lower-bin rule, exactly).
+    #[arg(long, value_enum, default_value_t = crate::source::Lookup::Linear)]
+    pub interp: crate::source::Lookup,
 
     /// Incident direction (towards the light) as a vector; normalized.
     #[arg(
@@ -117,7 +123,8 @@ pub struct EvalArgs {
 const MAX_LINE_BYTES: usize = 64 * 1024;
 
 pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
-    let brdf = crate::source::open_brdf(&args.source)
+    let brdf = crate::source::Source::open(&args.source)
+        .and_then(|s| s.into_brdf(args.interp))
         .map_err(|e| prefix_error(e, &format!("source {:?}", args.source)))?;
     let writer = RowWriter::new(&*brdf, args.format, args.echo);
     let pair = single_pair(&args)?;
