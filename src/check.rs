@@ -373,17 +373,36 @@ pub fn check(
     cells: Option<(&Grid, &[bool])>,
     opts: &CheckOptions,
 ) -> Result<CheckReport> {
-    let uniform = check_set(reference, candidate, &SampleSet::uniform(opts.samples, opts.seed))?;
+    let uniform = check_set(
+        reference,
+        candidate,
+        &SampleSet::uniform(opts.samples, opts.seed),
+    )?;
     let mut others = Vec::new();
     if opts.all_sets {
         let n = (opts.samples / 4).max(1);
-        others.push(check_set(reference, candidate, &SampleSet::grazing(n, opts.seed))?);
-        others.push(check_set(reference, candidate, &SampleSet::specular(n, opts.seed))?);
+        others.push(check_set(
+            reference,
+            candidate,
+            &SampleSet::grazing(n, opts.seed),
+        )?);
+        others.push(check_set(
+            reference,
+            candidate,
+            &SampleSet::specular(n, opts.seed),
+        )?);
         if let Some((grid, valid)) = cells {
-            others.push(check_set(reference, candidate, &SampleSet::cells(grid, valid))?);
+            others.push(check_set(
+                reference,
+                candidate,
+                &SampleSet::cells(grid, valid),
+            )?);
         }
     }
-    let worst_other = others.iter().map(|r| r.combined.clone()).reduce(|a, b| worst(&a, &b));
+    let worst_other = others
+        .iter()
+        .map(|r| r.combined.clone())
+        .reduce(|a, b| worst(&a, &b));
     Ok(CheckReport {
         reference: reference.describe(),
         candidate: candidate.describe(),
@@ -401,9 +420,17 @@ fn worst(a: &Metrics, b: &Metrics) -> Metrics {
         rmse: pick(a.rmse, b.rmse),
         rel_rmse: pick(a.rel_rmse, b.rel_rmse),
         max_abs: pick(a.max_abs, b.max_abs),
-        max_abs_at: if a.max_abs >= b.max_abs { a.max_abs_at } else { b.max_abs_at },
+        max_abs_at: if a.max_abs >= b.max_abs {
+            a.max_abs_at
+        } else {
+            b.max_abs_at
+        },
         max_rel: pick(a.max_rel, b.max_rel),
-        max_rel_at: if a.max_rel >= b.max_rel { a.max_rel_at } else { b.max_rel_at },
+        max_rel_at: if a.max_rel >= b.max_rel {
+            a.max_rel_at
+        } else {
+            b.max_rel_at
+        },
         log_rmse: pick(a.log_rmse, b.log_rmse),
         rel_rmse_core: pick(a.rel_rmse_core, b.rel_rmse_core),
         p99_rel_core: pick(a.p99_rel_core, b.p99_rel_core),
@@ -526,7 +553,16 @@ mod tests {
 
     #[test]
     fn constant_against_itself_is_all_zero() {
-        let r = check(&konst(0.3), &konst(0.3), None, &CheckOptions { samples: 4096, ..Default::default() }).unwrap();
+        let r = check(
+            &konst(0.3),
+            &konst(0.3),
+            None,
+            &CheckOptions {
+                samples: 4096,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let m = &r.uniform.combined;
         for name in BOUNDABLE.iter().filter(|n| **n != "albedo_err") {
             assert_eq!(m.get(name), Some(0.0), "{name}");
@@ -536,7 +572,16 @@ mod tests {
 
     #[test]
     fn known_offset_gives_rmse_equal_to_it() {
-        let r = check(&konst(0.3), &konst(0.35), None, &CheckOptions { samples: 4096, ..Default::default() }).unwrap();
+        let r = check(
+            &konst(0.3),
+            &konst(0.35),
+            None,
+            &CheckOptions {
+                samples: 4096,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let m = &r.uniform.combined;
         assert!((m.rmse - 0.05).abs() < 1e-12, "{}", m.rmse);
         assert!((m.max_abs - 0.05).abs() < 1e-12);
@@ -551,11 +596,25 @@ mod tests {
     fn nan_in_the_candidate_is_counted_not_propagated() {
         let mut cand = konst(0.3);
         cand.nan_above = Some(0.5);
-        let r = check(&konst(0.3), &cand, None, &CheckOptions { samples: 4000, all_sets: false, ..Default::default() }).unwrap();
+        let r = check(
+            &konst(0.3),
+            &cand,
+            None,
+            &CheckOptions {
+                samples: 4000,
+                all_sets: false,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let m = &r.uniform.combined;
         assert!(m.nonfinite > 0);
         // wi.z uniform in [0, 1): about half the pairs, 3 channels each.
-        assert!((m.nonfinite as f64 / 12000.0 - 0.5).abs() < 0.05, "{}", m.nonfinite);
+        assert!(
+            (m.nonfinite as f64 / 12000.0 - 0.5).abs() < 0.05,
+            "{}",
+            m.nonfinite
+        );
         assert_eq!(m.rmse, 0.0);
         assert!(serde_json::to_string(&r).unwrap().contains("\"nonfinite\""));
     }

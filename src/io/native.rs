@@ -279,7 +279,13 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     let values = cells
         .checked_mul(channels.len())
         .ok_or_else(|| Error::invalid_file(path, "table size overflows"))?;
-    let data = h.codec.decode(secs[1].1, values).map_err(in_file)?;
+    let _ = values;
+    let layout = crate::codec::Layout {
+        grid: &grid,
+        valid: &valid,
+        channels: channels.len(),
+    };
+    let data = h.codec.decode(secs[1].1, &layout).map_err(in_file)?;
     Table::new(grid, channels, h.provenance, data, valid).map_err(in_file)
 }
 

@@ -1,0 +1,1 @@
+//! Stage search: the smallest codec meeting an error budget.
