@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 use std::io::Write;
 
+mod compress;
 mod eval;
 
 /// brdfpack: turn BRDFs into compact tables and back.
@@ -18,6 +19,8 @@ pub struct Cli {
 enum Command {
     /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
     Eval(eval::EvalArgs),
+    /// Re-encode a table with a codec, or the smallest codec meeting an error budget.
+    Compress(compress::CompressArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -32,6 +35,7 @@ pub fn main() -> i32 {
     };
     let result = match cli.command {
         Command::Eval(a) => eval::run(a),
+        Command::Compress(a) => compress::run(a),
     };
     match result {
         Ok(code) => code,
