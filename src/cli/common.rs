@@ -1,6 +1,6 @@
 //! Plumbing shared by subcommands: output format flags, writing tables, terminals.
 
-use crate::codec::CodecSpec;
+use crate::codec::CodecRequest;
 use crate::grid::Grid;
 use crate::io::exr::{ExrCompression, ExrOptions, ExrSampleType};
 use crate::io::merl::merl_dims;
@@ -26,14 +26,22 @@ pub struct OutputArgs {
     /// EXR compression; lossless by default (pxr24 is lossy for f32 and only used when named).
     #[arg(long, value_enum, default_value_t = ExrCompression::Zip, help_heading = "Output")]
     pub exr_compression: ExrCompression,
-    /// zstd level of the native format's lossless payload (1–22).
-    #[arg(long, default_value_t = 19, value_parser = clap::value_parser!(i32).range(1..=22), help_heading = "Output")]
-    pub zstd_level: i32,
+    /// Codec of the native format: `lossless` (prediction + byte shuffle + zstd, bit-exact),
+    /// `zstd-f32`, `f16`, `uniform:bits=K`, `dct:step=S` ... (docs/compression.md).
+    #[arg(long, default_value = "lossless", help_heading = "Output")]
+    pub codec: String,
+}
+
+/// Where a table goes: the format, with the native codec still to be fitted to the table.
+pub enum OutputPlan {
+    Native(CodecRequest),
+    Other(OutputFormat),
 }
 
 impl OutputArgs {
-    /// The format for `path`, checking that `grid` can be written in it.
-    pub fn resolve(&self, path: &Path, grid: &Grid) -> Result<OutputFormat> {
+    /// The format for `path`, checking that `grid` can be written in it and that the codec
+    /// spec parses (before any work is done).
+    pub fn resolve(&self, path: &Path, grid: &Grid) -> Result<OutputPlan> {
         let format = self
             .format
             .or_else(|| FormatName::from_path(path))
@@ -54,21 +62,29 @@ impl OutputArgs {
             )));
         }
         Ok(match format {
-            FormatName::Native => OutputFormat::Native(CodecSpec::ZstdF32 {
-                level: self.zstd_level,
-            }),
-            FormatName::Exr => OutputFormat::Exr(ExrOptions {
+            FormatName::Native => OutputPlan::Native(CodecRequest::parse(&self.codec)?),
+            FormatName::Exr => OutputPlan::Other(OutputFormat::Exr(ExrOptions {
                 sample_type: self.exr_type,
                 compression: self.exr_compression,
-            }),
-            FormatName::Merl => OutputFormat::Merl,
+            })),
+            FormatName::Merl => OutputPlan::Other(OutputFormat::Merl),
+        })
+    }
+}
+
+impl OutputPlan {
+    /// The concrete format for `table` (the native codec's data-derived parameters filled in).
+    pub fn for_table(&self, table: &Table) -> Result<OutputFormat> {
+        Ok(match self {
+            OutputPlan::Native(req) => OutputFormat::Native(req.resolve(table)?),
+            OutputPlan::Other(f) => f.clone(),
         })
     }
 }
 
 /// Encodes and writes a table atomically (`-` for stdout); returns the bytes written.
-pub fn write_table(table: &Table, path: &Path, format: &OutputFormat) -> Result<usize> {
-    let bytes = encode_table(table, format)?;
+pub fn write_table(table: &Table, path: &Path, plan: &OutputPlan) -> Result<usize> {
+    let bytes = encode_table(table, &plan.for_table(table)?)?;
     atomic::write_output(path, &bytes)?;
     Ok(bytes.len())
 }

@@ -56,6 +56,7 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
         Source::Table(t) => regrid(t, &grid, a.interp, &opts)?,
         other => tabulate(other.into_brdf(Lookup::Linear)?.as_ref(), &grid, &opts)?,
     };
+    let output = output.for_table(&table)?;
     let bytes = encode_table(&table, &output)?;
     atomic::write_output(&a.output, &bytes)?;
     if a.verbose {

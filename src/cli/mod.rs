@@ -6,6 +6,7 @@ use std::io::Write;
 
 mod check;
 mod common;
+mod compress;
 mod convert;
 mod eval;
 mod inspect;
@@ -43,6 +44,8 @@ enum Command {
     Convert(convert::ConvertArgs),
     /// Describe a table file: format, grid, channels, provenance, value statistics.
     Inspect(inspect::InspectArgs),
+    /// Re-encode a table with a codec, or the smallest codec meeting an error budget.
+    Compress(compress::CompressArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -64,6 +67,7 @@ pub fn main() -> i32 {
         Command::Props(a) => props::run(a),
         Command::Convert(a) => convert::run(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Compress(a) => compress::run(a),
     };
     match result {
         Ok(code) => code,

@@ -4,7 +4,8 @@
 use super::check::{Bounds, verdict};
 use super::common::{Lookup, Source, SymmetryArgs, stderr_is_terminal};
 use crate::check::{CheckOptions, check, fmt_num};
-use crate::codec::CodecSpec;
+use crate::codec::search::{Budget, search};
+use crate::codec::{CodecRequest, CodecSpec};
 use crate::grid::parse_grid_spec;
 use crate::io::{atomic, native};
 use crate::model::Model;
@@ -35,6 +36,13 @@ pub struct PackArgs {
     pub seed: u64,
     #[command(flatten)]
     pub symmetry: SymmetryArgs,
+    /// Codec of the file (docs/compression.md); default `lossless` (bit-exact).
+    #[arg(long, conflicts_with = "max_error")]
+    pub codec: Option<String>,
+    /// Error budget, e.g. `log_rmse=0.01,p99_rel_core=0.2`: the smallest codec meeting it on
+    /// the uniform set (measured against the tabulated table) is chosen.
+    #[arg(long)]
+    pub max_error: Option<String>,
     /// One JSON object instead of report lines.
     #[arg(long)]
     pub json: bool,
@@ -82,8 +90,15 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         &a.symmetry.options(stderr_is_terminal() && !a.quiet),
     )?;
     let tabulate_s = t0.elapsed().as_secs_f64();
-    let codec = CodecSpec::default();
     let t1 = Instant::now();
+    let codec = match (&a.codec, &a.max_error) {
+        (_, Some(b)) => {
+            let budget = Budget::parse(b)?;
+            let set = crate::check::SampleSet::uniform(a.samples, a.seed);
+            search(&table, &budget, &set, 19)?.best.spec
+        }
+        (c, None) => CodecRequest::parse(c.as_deref().unwrap_or("lossless"))?.resolve(&table)?,
+    };
     let bytes = native::to_bytes(&table, &codec)?;
     let encode_s = t1.elapsed().as_secs_f64();
     // Check what a reader will get: decode the bytes we are about to write.

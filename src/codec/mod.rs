@@ -1,10 +1,36 @@
 //! Codecs: how a table's samples become the payload of a file and back.
 //!
-//! A [`CodecSpec`] is recorded in the file header, so any file decodes with no flags.
+//! A codec is a chain of stages, each a small type with its own encode/decode and tests:
+//! (1) [`domain`] — which cells are coded (invalid cells cost no bytes: the mask is implied by
+//! the grid or stored beside the data); (2) [`transform`] — a curve (linear or log(ε + x)) and
+//! an optional colour decorrelation; (3) [`quantize`] — f32 (lossless), f16 or k-bit uniform;
+//! (4) [`predict`] — residuals from grid neighbours, byte-plane shuffle; (5) [`entropy`] —
+//! zstd; (6) [`dct`] — transform coding of the whole table with quantized coefficients.
+//!
+//! A [`CodecSpec`] is the fully resolved chain (every data-derived parameter written out) and
+//! is recorded in the file header, so any file decodes with no flags. A [`CodecRequest`] is
+//! what a user asks for (`--codec dct:step=0.02`); [`CodecRequest::resolve`] turns it into a
+//! spec for a given table. [`search`] picks the smallest spec meeting an error budget.
 
+pub mod dct;
+pub mod domain;
+pub mod entropy;
+pub mod predict;
+pub mod quantize;
+pub mod search;
+#[doc(hidden)]
+pub mod testdata;
+pub mod transform;
+
+use crate::grid::{Grid, GridKind};
 use crate::table::Table;
 use crate::{Error, Result};
+use domain::Domain;
+use entropy::Zstd;
+use predict::{Predictor, Shape};
+use quantize::Quantizer;
 use serde::{Deserialize, Serialize};
+use transform::{Colour, Curve, Transform};
 
 /// A codec, as recorded in a file header.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -13,6 +39,30 @@ pub enum CodecSpec {
     /// Lossless: the f32 samples of every cell (little-endian, cell-major, channel fastest)
     /// compressed with zstd. Typical ratio 1.1–2× on smooth tables.
     ZstdF32 { level: i32 },
+    /// Lossless: valid cells only, each f32 predicted from its grid neighbours, the residuals
+    /// of the order-preserving integer keys byte-shuffled and compressed.
+    Lossless {
+        domain: Domain,
+        predict: Predictor,
+        entropy: Zstd,
+    },
+    /// Lossy with a known max error in the transformed space: transform, quantize (f16 or
+    /// uniform), predict the integer codes, shuffle, compress.
+    Quantized {
+        domain: Domain,
+        transform: Transform,
+        quantize: Quantizer,
+        predict: Predictor,
+        entropy: Zstd,
+    },
+    /// Lossy transform coding: fill invalid cells, transform, separable DCT over the grid,
+    /// quantized coefficients in a low-frequency box, compressed.
+    Dct {
+        domain: Domain,
+        transform: Transform,
+        dct: dct::DctStage,
+        entropy: Zstd,
+    },
 }
 
 impl Default for CodecSpec {
@@ -21,48 +71,795 @@ impl Default for CodecSpec {
     }
 }
 
+/// What the decoder knows besides the payload: the grid, the validity of every cell (from the
+/// grid's geometry or the file's mask) and the channel count.
+#[derive(Clone, Copy, Debug)]
+pub struct Layout<'a> {
+    pub grid: &'a Grid,
+    pub valid: &'a [bool],
+    pub channels: usize,
+}
+
+impl<'a> Layout<'a> {
+    pub fn of(table: &'a Table) -> Layout<'a> {
+        Layout {
+            grid: table.grid(),
+            valid: table.valid(),
+            channels: table.channels().len(),
+        }
+    }
+    fn values(&self) -> Result<usize> {
+        self.valid
+            .len()
+            .checked_mul(self.channels)
+            .ok_or_else(|| Error::input("table too large"))
+    }
+    fn dims(&self) -> Vec<usize> {
+        self.grid.shape()
+    }
+    fn shape<'b>(&'b self, dims: &'b [usize]) -> Shape<'b> {
+        Shape {
+            dims,
+            valid: self.valid,
+            channels: self.channels,
+        }
+    }
+}
+
+/// The order in which [`domain::fill_invalid`] extends along axes: the second polar angle
+/// first (θd, θo: the horizon cut runs across it), then the others.
+fn fill_order(kind: GridKind) -> Vec<usize> {
+    match kind {
+        GridKind::Halfdiff3 | GridKind::Spherical3 => vec![1, 0, 2],
+        GridKind::Halfdiff4 | GridKind::Spherical4 => vec![2, 0, 1, 3],
+    }
+}
+
 impl CodecSpec {
     /// True when decoding returns the input bit for bit.
     pub fn is_lossless(&self) -> bool {
+        matches!(self, CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. })
+    }
+
+    /// The largest error of any valid sample in the transformed space (log space for the log
+    /// curve: a relative error of ε + x), when the codec guarantees one.
+    pub fn max_transformed_error(&self) -> Option<f64> {
         match self {
-            CodecSpec::ZstdF32 { .. } => true,
+            CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. } => Some(0.0),
+            CodecSpec::Quantized {
+                transform,
+                quantize: Quantizer::Uniform { step, .. },
+                ..
+            } => {
+                // Through an orthonormal colour matrix each channel gets Σ_i |M_ik| step_i/2.
+                let c = step.len();
+                let e = match &transform.colour {
+                    None => step.iter().fold(0.0f64, |m, s| m.max(s / 2.0)),
+                    Some(col) => (0..c)
+                        .map(|k| {
+                            (0..c)
+                                .map(|i| col.matrix[i * c + k].abs() * step[i] / 2.0)
+                                .sum()
+                        })
+                        .fold(0.0f64, f64::max),
+                };
+                Some(e)
+            }
+            _ => None,
+        }
+    }
+
+    /// One line on what the codec preserves.
+    pub fn preserves(&self) -> String {
+        match self {
+            CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. } => {
+                "every valid sample bit for bit".into()
+            }
+            CodecSpec::Quantized { quantize, .. } => match self.max_transformed_error() {
+                Some(e) => format!("every valid sample within ±{e:.3e} in the transformed space"),
+                None => match quantize {
+                    Quantizer::F16 { .. } => {
+                        "every valid sample to f16 precision (relative 2^-11) in the transformed space"
+                            .into()
+                    }
+                    Quantizer::Uniform { .. } => unreachable!("uniform has a bound"),
+                },
+            },
+            CodecSpec::Dct { dct, .. } => format!(
+                "the table in the mean-square sense: RMS error ≈ step/√12 = {:.3e} in the \
+                 transformed space (no per-sample bound)",
+                dct.step.iter().fold(0.0f64, |m, s| m.max(*s)) / 12f64.sqrt()
+            ),
+        }
+    }
+
+    /// A compact one-line form for reports.
+    pub fn summary(&self) -> String {
+        serde_json::to_string(self).unwrap_or_else(|_| format!("{self:?}"))
+    }
+
+    /// Checks the spec against the table layout (parameters from a header may be hostile).
+    fn validate(&self, layout: &Layout) -> Result<()> {
+        let c = layout.channels;
+        let d = layout.grid.axes().len();
+        let check_pred = |p: &Predictor| {
+            if p.orders.len() != d {
+                return Err(Error::input(format!(
+                    "predictor orders {:?}: expected {d} (one per grid axis)",
+                    p.orders
+                )));
+            }
+            Ok(())
+        };
+        match self {
+            CodecSpec::ZstdF32 { .. } => Ok(()),
+            CodecSpec::Lossless { predict, .. } => check_pred(predict),
+            CodecSpec::Quantized {
+                transform,
+                quantize,
+                predict,
+                ..
+            } => {
+                transform.validate(c)?;
+                quantize.validate(c)?;
+                check_pred(predict)
+            }
+            CodecSpec::Dct { transform, dct, .. } => {
+                transform.validate(c)?;
+                if dct.step.len() != c || dct.step.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+                    return Err(Error::input(format!(
+                        "dct steps {:?}: need {c} finite positive values",
+                        dct.step
+                    )));
+                }
+                Ok(())
+            }
         }
     }
 
     /// Encodes the table's samples.
     pub fn encode(&self, table: &Table) -> Result<Vec<u8>> {
-        match *self {
+        let layout = Layout::of(table);
+        self.validate(&layout)?;
+        let c = layout.channels;
+        let dims = layout.dims();
+        match self {
             CodecSpec::ZstdF32 { level } => {
                 let mut raw = Vec::with_capacity(table.data().len() * 4);
                 for v in table.data() {
                     raw.extend_from_slice(&v.to_le_bytes());
                 }
-                zstd::bulk::compress(&raw, level)
-                    .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))
+                Zstd { level: *level }.compress(&raw)
+            }
+            CodecSpec::Lossless {
+                predict, entropy, ..
+            } => {
+                let res = predict.residuals_f32(table.data(), &layout.shape(&dims))?;
+                entropy.compress(&predict::shuffle(&res))
+            }
+            CodecSpec::Quantized {
+                transform,
+                quantize,
+                predict,
+                entropy,
+                ..
+            } => {
+                let z = transform.forward_all(table.data(), c);
+                let mut codes = vec![0i32; z.len()];
+                for (cell, &ok) in layout.valid.iter().enumerate() {
+                    if ok {
+                        for k in 0..c {
+                            codes[cell * c + k] = quantize.encode(z[cell * c + k], k)?;
+                        }
+                    }
+                }
+                let res = predict.residuals_i32(&codes, &layout.shape(&dims))?;
+                entropy.compress(&predict::shuffle(&res))
+            }
+            CodecSpec::Dct {
+                transform,
+                dct: stage,
+                entropy,
+                ..
+            } => {
+                let coefs = dct_coefficients(table, transform)?;
+                let comps: Vec<_> = coefs
+                    .iter()
+                    .zip(&stage.step)
+                    .map(|(p, &s)| dct::quantize(p, &dims, s))
+                    .collect();
+                entropy.compress(&dct::serialize(&comps))
             }
         }
     }
 
-    /// Decodes `payload` into exactly `values` f32 samples (cell-major, channel fastest).
-    pub fn decode(&self, payload: &[u8], values: usize) -> Result<Vec<f32>> {
-        match *self {
-            CodecSpec::ZstdF32 { .. } => {
+    /// Decodes `payload` into every cell's values (cell-major, channel fastest); invalid
+    /// cells are 0.
+    pub fn decode(&self, payload: &[u8], layout: &Layout) -> Result<Vec<f32>> {
+        self.validate(layout)?;
+        let values = layout.values()?;
+        let c = layout.channels;
+        let dims = layout.dims();
+        let n_valid = layout.valid.iter().filter(|&&v| v).count();
+        match self {
+            CodecSpec::ZstdF32 { level } => {
                 let want = values
                     .checked_mul(4)
                     .ok_or_else(|| Error::input("table too large"))?;
-                let raw = zstd::bulk::decompress(payload, want)
-                    .map_err(|e| Error::input(format!("zstd payload: {e}")))?;
-                if raw.len() != want {
-                    return Err(Error::input(format!(
-                        "payload decodes to {} bytes, expected {want}",
-                        raw.len()
-                    )));
-                }
+                let raw = Zstd { level: *level }.decompress(payload, want)?;
                 Ok(raw
                     .chunks_exact(4)
                     .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
                     .collect())
             }
+            CodecSpec::Lossless {
+                predict, entropy, ..
+            } => {
+                let raw = entropy.decompress(payload, n_valid * c * 4)?;
+                let res = predict::unshuffle(&raw)?;
+                predict.reconstruct_f32(&res, &layout.shape(&dims))
+            }
+            CodecSpec::Quantized {
+                transform,
+                quantize,
+                predict,
+                entropy,
+                ..
+            } => {
+                let raw = entropy.decompress(payload, n_valid * c * 4)?;
+                let res = predict::unshuffle(&raw)?;
+                let codes = predict.reconstruct_i32(&res, &layout.shape(&dims))?;
+                let mut out = vec![0f32; values];
+                let mut z = vec![0.0; c];
+                let mut y = vec![0.0; c];
+                for (cell, &ok) in layout.valid.iter().enumerate() {
+                    if ok {
+                        for k in 0..c {
+                            z[k] = quantize.decode(codes[cell * c + k], k);
+                        }
+                        transform.inverse_cell(&z, &mut y, &mut out[cell * c..(cell + 1) * c]);
+                    }
+                }
+                Ok(out)
+            }
+            CodecSpec::Dct {
+                transform,
+                dct: stage,
+                entropy,
+                ..
+            } => {
+                // Varints take at most 5 bytes per code plus 10 per extent.
+                let cap = values
+                    .checked_mul(5)
+                    .and_then(|v| v.checked_add(10 * c * dims.len() + 16))
+                    .ok_or_else(|| Error::input("table too large"))?;
+                let raw = entropy.decompress_capped(payload, cap)?;
+                let comps = dct::deserialize(&raw, &dims, c)?;
+                let planes: Vec<Vec<f32>> = comps
+                    .iter()
+                    .zip(&stage.step)
+                    .map(|(q, &s)| dct::inverse(q, &dims, s))
+                    .collect();
+                Ok(inverse_planes(transform, &planes, layout.valid, c))
+            }
         }
+    }
+}
+
+/// The forward DCT coefficients of every transformed component of `table` (invalid cells
+/// filled first). Exposed so the search can quantize one transform at many steps.
+pub fn dct_coefficients(table: &Table, transform: &Transform) -> Result<Vec<Vec<f64>>> {
+    let c = table.channels().len();
+    let dims = table.grid().shape();
+    let cells = table.grid().cells();
+    let z = transform.forward_all(table.data(), c);
+    let mut planes: Vec<Vec<f64>> = (0..c)
+        .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
+        .collect();
+    domain::fill_invalid(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &fill_order(table.grid().kind()),
+    );
+    Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
+}
+
+/// Component planes → cell-major channels through the inverse transform (f32 hot loop).
+fn inverse_planes(t: &Transform, planes: &[Vec<f32>], valid: &[bool], c: usize) -> Vec<f32> {
+    let cells = valid.len();
+    let mut out = vec![0f32; cells * c];
+    let m: Option<Vec<f32>> = t
+        .colour
+        .as_ref()
+        .map(|col| col.matrix.iter().map(|&x| x as f32).collect());
+    let mut z = vec![0f32; c];
+    for (f, &ok) in valid.iter().enumerate() {
+        if !ok {
+            continue;
+        }
+        for k in 0..c {
+            z[k] = planes[k][f];
+        }
+        let o = &mut out[f * c..(f + 1) * c];
+        for (k, ok) in o.iter_mut().enumerate() {
+            let y = match &m {
+                Some(m) => (0..c).map(|i| m[i * c + k] * z[i]).sum::<f32>(),
+                None => z[k],
+            };
+            *ok = t.curve.inverse_f32(y, k);
+        }
+    }
+    out
+}
+
+/// How a curve is chosen for a table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CurveRequest {
+    Linear,
+    /// Log with ε_c = `eps_rel` × mean of channel c over valid cells.
+    Log {
+        eps_rel: f64,
+    },
+}
+
+/// A codec as asked for on the command line, before data-derived parameters are known.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CodecRequest {
+    ZstdF32 {
+        level: i32,
+    },
+    Lossless {
+        level: i32,
+        predict: Option<Predictor>,
+    },
+    F16 {
+        curve: CurveRequest,
+        level: i32,
+    },
+    Uniform {
+        curve: CurveRequest,
+        bits: u32,
+        colour: bool,
+        level: i32,
+    },
+    Dct {
+        curve: CurveRequest,
+        step: f64,
+        colour: bool,
+        level: i32,
+    },
+}
+
+/// Default log ε relative to a channel's mean: the metrics' ε (spec/metrics.md) is 1e-3 of the
+/// mean, so values far below it do not count and need no relative precision.
+pub const DEFAULT_EPS_REL: f64 = 1e-3;
+
+impl CodecRequest {
+    /// Parses `NAME[:key=value,...]` (grammar in docs/compression.md).
+    pub fn parse(spec: &str) -> Result<CodecRequest> {
+        let spec = spec.trim();
+        let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
+        let mut kv = std::collections::BTreeMap::new();
+        for part in rest.split(',').filter(|s| !s.is_empty()) {
+            let (k, v) = part.split_once('=').ok_or_else(|| {
+                Error::input(format!("codec {spec:?}: option {part:?} is not key=value"))
+            })?;
+            kv.insert(k.trim().to_string(), v.trim().to_string());
+        }
+        let bad = |k: &str, v: &str, want: &str| {
+            Error::input(format!("codec {spec:?}: {k} = {v:?}, expected {want}"))
+        };
+        let mut take = |k: &str| kv.remove(k);
+        let level = match take("level") {
+            None => 19,
+            Some(v) => match v.parse::<i32>() {
+                Ok(l) if (1..=22).contains(&l) => l,
+                _ => return Err(bad("level", &v, "an integer in 1..=22")),
+            },
+        };
+        let eps_rel = match take("eps") {
+            None => DEFAULT_EPS_REL,
+            Some(v) => match v.parse::<f64>() {
+                Ok(e) if e.is_finite() && e > 0.0 => e,
+                _ => {
+                    return Err(bad(
+                        "eps",
+                        &v,
+                        "a positive number (relative to the channel mean)",
+                    ));
+                }
+            },
+        };
+        let curve = match take("curve").as_deref() {
+            None | Some("log") => CurveRequest::Log { eps_rel },
+            Some("linear") => CurveRequest::Linear,
+            Some(v) => return Err(bad("curve", v, "log or linear")),
+        };
+        let colour = match take("colour").as_deref() {
+            None | Some("klt") => true,
+            Some("none") => false,
+            Some(v) => return Err(bad("colour", v, "klt or none")),
+        };
+        let req = match name {
+            "zstd-f32" => CodecRequest::ZstdF32 { level },
+            "lossless" => {
+                let predict = match take("predict").as_deref() {
+                    None | Some("auto") => None,
+                    Some(o) => {
+                        let orders = o
+                            .split('.')
+                            .map(|x| match x.parse::<u8>() {
+                                Ok(v) if v <= 2 => Ok(v),
+                                _ => {
+                                    Err(bad("predict", o, "auto or orders like 1.1.1 (each 0..=2)"))
+                                }
+                            })
+                            .collect::<Result<Vec<u8>>>()?;
+                        let space = match take("space").as_deref() {
+                            None | Some("float") => predict::Space::Float,
+                            Some("integer") => predict::Space::Integer,
+                            Some(v) => return Err(bad("space", v, "float or integer")),
+                        };
+                        let cross_channel = match take("cross").as_deref() {
+                            None | Some("on") => true,
+                            Some("off") => false,
+                            Some(v) => return Err(bad("cross", v, "on or off")),
+                        };
+                        Some(Predictor {
+                            orders,
+                            space,
+                            cross_channel,
+                        })
+                    }
+                };
+                CodecRequest::Lossless { level, predict }
+            }
+            "f16" => CodecRequest::F16 { curve, level },
+            "uniform" => {
+                let bits = match take("bits") {
+                    None => {
+                        return Err(Error::input(format!(
+                            "codec {spec:?}: uniform needs bits=K"
+                        )));
+                    }
+                    Some(v) => match v.parse::<u32>() {
+                        Ok(b) if (2..=24).contains(&b) => b,
+                        _ => return Err(bad("bits", &v, "an integer in 2..=24")),
+                    },
+                };
+                CodecRequest::Uniform {
+                    curve,
+                    bits,
+                    colour,
+                    level,
+                }
+            }
+            "dct" => {
+                let step = match take("step") {
+                    None => return Err(Error::input(format!("codec {spec:?}: dct needs step=S"))),
+                    Some(v) => match v.parse::<f64>() {
+                        Ok(s) if s.is_finite() && s > 0.0 => s,
+                        _ => return Err(bad("step", &v, "a positive number")),
+                    },
+                };
+                CodecRequest::Dct {
+                    curve,
+                    step,
+                    colour,
+                    level,
+                }
+            }
+            _ => {
+                return Err(Error::input(format!(
+                    "codec {spec:?}: unknown codec {name:?} (expected zstd-f32, lossless, f16, \
+                     uniform or dct)"
+                )));
+            }
+        };
+        if let Some(k) = kv.keys().next() {
+            return Err(Error::input(format!(
+                "codec {spec:?}: option {k:?} does not apply to {name}"
+            )));
+        }
+        Ok(req)
+    }
+
+    /// The full spec for `table`: ε from the channel means, the colour matrix from the
+    /// channels' covariance, the predictor by trial, steps from ranges.
+    pub fn resolve(&self, table: &Table) -> Result<CodecSpec> {
+        let c = table.channels().len();
+        let d = table.grid().axes().len();
+        let shape_dims = table.grid().shape();
+        let shape = Shape {
+            dims: &shape_dims,
+            valid: table.valid(),
+            channels: c,
+        };
+        Ok(match self {
+            CodecRequest::ZstdF32 { level } => CodecSpec::ZstdF32 { level: *level },
+            CodecRequest::Lossless { level, predict } => {
+                let predict = match predict {
+                    Some(p) => p.clone(),
+                    None => best_predictor(table.data(), &shape, d)?,
+                };
+                CodecSpec::Lossless {
+                    domain: Domain::DropInvalid,
+                    predict,
+                    entropy: Zstd { level: *level },
+                }
+            }
+            CodecRequest::F16 { curve, level } => {
+                let transform = Transform {
+                    curve: curve_for(table, *curve),
+                    colour: None,
+                };
+                let z = transform.forward_all(table.data(), c);
+                let max_abs =
+                    valid_values(&z, table.valid(), c).fold(0.0f64, |m, v| m.max(v.abs()));
+                CodecSpec::Quantized {
+                    domain: Domain::DropInvalid,
+                    transform,
+                    quantize: Quantizer::f16_for(max_abs),
+                    predict: Predictor {
+                        orders: vec![1; d],
+                        space: predict::Space::Integer,
+                        cross_channel: c > 1,
+                    },
+                    entropy: Zstd { level: *level },
+                }
+            }
+            CodecRequest::Uniform {
+                curve,
+                bits,
+                colour,
+                level,
+            } => {
+                let transform = transform_for(table, *curve, *colour);
+                let z = transform.forward_all(table.data(), c);
+                let (lo, hi): (Vec<f64>, Vec<f64>) = (0..c)
+                    .map(|k| {
+                        let (lo, hi) = z
+                            .chunks_exact(c)
+                            .zip(table.valid())
+                            .filter(|(_, ok)| **ok)
+                            .fold((f64::MAX, f64::MIN), |(lo, hi), (v, _)| {
+                                (lo.min(v[k]), hi.max(v[k]))
+                            });
+                        // No valid cell: an empty range at 0.
+                        if hi >= lo { (lo, hi) } else { (0.0, 0.0) }
+                    })
+                    .unzip();
+                CodecSpec::Quantized {
+                    domain: Domain::DropInvalid,
+                    transform,
+                    quantize: Quantizer::bits_for(*bits, &lo, &hi)?,
+                    predict: Predictor {
+                        orders: vec![1; d],
+                        space: predict::Space::Integer,
+                        cross_channel: false,
+                    },
+                    entropy: Zstd { level: *level },
+                }
+            }
+            CodecRequest::Dct {
+                curve,
+                step,
+                colour,
+                level,
+            } => CodecSpec::Dct {
+                domain: Domain::FillInvalid,
+                transform: transform_for(table, *curve, *colour),
+                dct: dct::DctStage {
+                    step: vec![*step; c],
+                },
+                entropy: Zstd { level: *level },
+            },
+        })
+    }
+}
+
+fn valid_values<'a>(z: &'a [f64], valid: &'a [bool], c: usize) -> impl Iterator<Item = f64> + 'a {
+    z.chunks_exact(c)
+        .zip(valid)
+        .filter(|(_, ok)| **ok)
+        .flat_map(|(v, _)| v.iter().copied())
+}
+
+/// The curve for a table: ε_c = eps_rel × the channel's mean over valid cells (falling back
+/// to the pooled mean, then 1e-6, so that ε is never 0 for a black channel).
+pub fn curve_for(table: &Table, req: CurveRequest) -> Curve {
+    match req {
+        CurveRequest::Linear => Curve::Linear,
+        CurveRequest::Log { eps_rel } => {
+            let c = table.channels().len();
+            let mut sum = vec![0.0f64; c];
+            let mut n = 0usize;
+            for (cell, &ok) in table.valid().iter().enumerate() {
+                if ok {
+                    n += 1;
+                    for (k, s) in sum.iter_mut().enumerate() {
+                        *s += table.data()[cell * c + k].max(0.0) as f64;
+                    }
+                }
+            }
+            let pooled = sum.iter().sum::<f64>() / (n.max(1) * c) as f64;
+            let eps = sum
+                .iter()
+                .map(|s| {
+                    let m = s / n.max(1) as f64;
+                    let e = eps_rel * if m > 0.0 { m } else { pooled };
+                    if e > 0.0 && e.is_finite() { e } else { 1e-6 }
+                })
+                .collect();
+            Curve::Log { eps }
+        }
+    }
+}
+
+/// Curve plus (for several channels) the KLT of the curved channels.
+pub fn transform_for(table: &Table, req: CurveRequest, colour: bool) -> Transform {
+    let c = table.channels().len();
+    let curve = curve_for(table, req);
+    let colour = if colour && c > 1 {
+        let t = Transform {
+            curve: curve.clone(),
+            colour: None,
+        };
+        let z = t.forward_all(table.data(), c);
+        let samples: Vec<f64> = valid_values(&z, table.valid(), c).collect();
+        Some(Colour::klt(&samples, c))
+    } else {
+        None
+    };
+    Transform { curve, colour }
+}
+
+/// The predictor with the smallest estimated coded size (order-0 entropy of the residual byte
+/// planes) among [`predict::candidates`].
+pub fn best_predictor(data: &[f32], shape: &Shape, d: usize) -> Result<Predictor> {
+    let mut best: Option<(f64, Predictor)> = None;
+    for p in predict::candidates(d, shape.channels) {
+        let r = p.residuals_f32(data, shape)?;
+        let bits = predict::plane_entropy_bits(&r);
+        if best.as_ref().is_none_or(|(b, _)| bits < *b) {
+            best = Some((bits, p));
+        }
+    }
+    best.map(|(_, p)| p)
+        .ok_or_else(|| Error::Failure("no predictor candidates".into()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::brdf::Channels;
+    use crate::grid::parse_grid_spec;
+    use crate::table::Provenance;
+
+    fn small_table() -> Table {
+        let g = parse_grid_spec("halfdiff3:8x8x12").unwrap();
+        let valid = g.geometric_mask();
+        let n = g.cells();
+        let data: Vec<f32> = (0..n * 3)
+            .map(|i| {
+                let f = i / 3;
+                let (a, b, cc) = (f / 96, f / 12 % 8, f % 12);
+                (0.1 + (a as f32 * 0.3).exp() * (1.0 + 0.1 * b as f32) + 0.01 * cc as f32)
+                    * (1.0 + 0.2 * (i % 3) as f32)
+            })
+            .collect();
+        Table::new(
+            g,
+            Channels::default_for(3),
+            Provenance::default(),
+            data,
+            valid,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn every_requested_codec_round_trips_through_its_header() {
+        let t = small_table();
+        for s in [
+            "zstd-f32",
+            "lossless",
+            "lossless:predict=0.0.1,space=integer,cross=off,level=3",
+            "f16",
+            "f16:curve=linear",
+            "uniform:bits=12",
+            "uniform:bits=8,curve=linear,colour=none",
+            "dct:step=0.001",
+            "dct:step=0.01,curve=linear,colour=none",
+        ] {
+            let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+            let json = serde_json::to_string(&spec).unwrap();
+            let back: CodecSpec = serde_json::from_str(&json).unwrap();
+            assert_eq!(back, spec, "{s}");
+            let payload = spec.encode(&t).unwrap();
+            let dec = back.decode(&payload, &Layout::of(&t)).unwrap();
+            assert_eq!(dec.len(), t.data().len());
+            for (cell, &ok) in t.valid().iter().enumerate() {
+                for k in 0..3 {
+                    let (a, b) = (dec[cell * 3 + k], t.data()[cell * 3 + k]);
+                    if !ok {
+                        assert_eq!(a, 0.0, "{s}: invalid cell {cell} decodes to {a}");
+                    } else if spec.is_lossless() {
+                        assert_eq!(a.to_bits(), b.to_bits(), "{s}");
+                    } else {
+                        // Coarsest settings above: within 5% (uniform 8-bit linear on a
+                        // range of ~15 is ±0.03 absolute).
+                        assert!((a - b).abs() <= 0.05 * b + 0.04, "{s}: {a} vs {b}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn uniform_meets_its_stated_max_error() {
+        let t = small_table();
+        let spec = CodecRequest::parse("uniform:bits=10")
+            .unwrap()
+            .resolve(&t)
+            .unwrap();
+        let bound = spec.max_transformed_error().unwrap();
+        let dec = spec
+            .decode(&spec.encode(&t).unwrap(), &Layout::of(&t))
+            .unwrap();
+        let CodecSpec::Quantized { transform, .. } = &spec else {
+            panic!()
+        };
+        for (cell, &ok) in t.valid().iter().enumerate() {
+            if ok {
+                for k in 0..3 {
+                    let a = transform.curve.forward(dec[cell * 3 + k] as f64, k);
+                    let b = transform.curve.forward(t.data()[cell * 3 + k] as f64, k);
+                    // f32 storage of the decoded value adds ~1e-7 relative.
+                    assert!((a - b).abs() <= bound + 1e-6, "{a} {b} {bound}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bad_requests_name_the_option() {
+        for (s, want) in [
+            ("dct", "needs step"),
+            ("dct:step=-1", "step"),
+            ("uniform:bits=40", "bits"),
+            ("lossless:level=99", "level"),
+            ("f16:bogus=1", "bogus"),
+            ("brotli", "unknown codec"),
+        ] {
+            let e = CodecRequest::parse(s).unwrap_err().to_string();
+            assert!(e.contains(want), "{s}: {e}");
+        }
+    }
+
+    #[test]
+    fn hostile_headers_and_payloads_are_errors_not_panics() {
+        let t = small_table();
+        let spec = CodecRequest::parse("dct:step=0.01")
+            .unwrap()
+            .resolve(&t)
+            .unwrap();
+        let payload = spec.encode(&t).unwrap();
+        let layout = Layout::of(&t);
+        for cut in [0, 1, payload.len() / 2, payload.len() - 1] {
+            assert!(spec.decode(&payload[..cut], &layout).is_err());
+        }
+        let mut bad = spec.clone();
+        if let CodecSpec::Dct { dct, .. } = &mut bad {
+            dct.step = vec![0.0; 3];
+        }
+        assert!(bad.decode(&payload, &layout).is_err());
+        let lossless = CodecRequest::parse("lossless")
+            .unwrap()
+            .resolve(&t)
+            .unwrap();
+        let p = lossless.encode(&t).unwrap();
+        assert!(lossless.decode(&p[..p.len() - 1], &layout).is_err());
     }
 }

@@ -311,7 +311,12 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     let values = cells
         .checked_mul(channels.len())
         .ok_or_else(|| Error::invalid_file(path, "table size overflows"))?;
-    let data = h.codec.decode(secs[1].1, values).map_err(in_file)?;
+    let layout = crate::codec::Layout {
+        grid: &grid,
+        valid: &valid,
+        channels: channels.len(),
+    };
+    let data = h.codec.decode(secs[1].1, &layout).map_err(in_file)?;
     let table = Table::new(grid, channels, h.provenance, data, valid).map_err(in_file)?;
     let f64x = secs.iter().find(|(t, _)| t == b"F64X").map(|s| s.1);
     match (&h.exact, f64x) {

@@ -1,0 +1,287 @@
+//! Stage (2), transform: a per-channel curve (linear or log(ε + x)) and an optional colour
+//! decorrelation (an orthonormal c×c matrix, the Karhunen–Loève transform of the table's
+//! channels, recorded in the header).
+
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+
+/// The per-channel curve applied before quantization.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "curve", rename_all = "snake_case")]
+pub enum Curve {
+    /// y = x.
+    Linear,
+    /// y = ln(ε_c + max(x, 0)): errors in y are relative errors of ε_c + x, so dark and bright
+    /// regions get the same relative precision above ε_c. Lossy codecs drop negative values
+    /// (they are below every ε the search tries).
+    Log { eps: Vec<f64> },
+}
+
+impl Curve {
+    /// Checks the curve against the channel count.
+    pub fn validate(&self, channels: usize) -> Result<()> {
+        if let Curve::Log { eps } = self
+            && (eps.len() != channels || eps.iter().any(|e| !(e.is_finite() && *e > 0.0)))
+        {
+            return Err(Error::input(format!(
+                "log curve: eps {eps:?} needs {channels} finite positive values"
+            )));
+        }
+        Ok(())
+    }
+    #[inline]
+    pub fn forward(&self, x: f64, ch: usize) -> f64 {
+        match self {
+            Curve::Linear => x,
+            Curve::Log { eps } => (eps[ch] + x.max(0.0)).ln(),
+        }
+    }
+    #[inline]
+    pub fn inverse(&self, y: f64, ch: usize) -> f64 {
+        match self {
+            Curve::Linear => y,
+            // Clamp: quantization error may push a value just below 0.
+            Curve::Log { eps } => (y.exp() - eps[ch]).max(0.0),
+        }
+    }
+    /// f32 inverse for the decoder's hot loop (same formula).
+    #[inline]
+    pub fn inverse_f32(&self, y: f32, ch: usize) -> f32 {
+        match self {
+            Curve::Linear => y,
+            Curve::Log { eps } => (y.exp() - eps[ch] as f32).max(0.0),
+        }
+    }
+}
+
+/// An orthonormal channel transform z = M y (rows of M are the new components), inverse Mᵀ.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Colour {
+    /// c×c, row-major.
+    pub matrix: Vec<f64>,
+}
+
+impl Colour {
+    pub fn channels(&self) -> usize {
+        (self.matrix.len() as f64).sqrt() as usize
+    }
+
+    pub fn validate(&self, channels: usize) -> Result<()> {
+        if self.matrix.len() != channels * channels || self.matrix.iter().any(|m| !m.is_finite()) {
+            return Err(Error::input(format!(
+                "colour matrix: {} finite entries needed for {channels} channels, got {}",
+                channels * channels,
+                self.matrix.len()
+            )));
+        }
+        // Orthonormality is what makes Mᵀ the inverse; a hand-edited header could break it.
+        for i in 0..channels {
+            for j in 0..channels {
+                let d: f64 = (0..channels)
+                    .map(|k| self.matrix[i * channels + k] * self.matrix[j * channels + k])
+                    .sum();
+                let want = if i == j { 1.0 } else { 0.0 };
+                if (d - want).abs() > 1e-9 {
+                    return Err(Error::input(
+                        "colour matrix is not orthonormal (rows must be unit and orthogonal)",
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The Karhunen–Loève transform of `samples` (n × c, row-major): eigenvectors of the
+    /// channel covariance by cyclic Jacobi rotations (Golub & Van Loan §8.5), sorted by
+    /// decreasing variance, each with its largest entry positive (deterministic signs).
+    pub fn klt(samples: &[f64], c: usize) -> Colour {
+        let n = samples.len() / c.max(1);
+        let mut mean = vec![0.0; c];
+        for row in samples.chunks_exact(c) {
+            for k in 0..c {
+                mean[k] += row[k];
+            }
+        }
+        for m in &mut mean {
+            *m /= n.max(1) as f64;
+        }
+        let mut a = vec![0.0; c * c];
+        for row in samples.chunks_exact(c) {
+            for i in 0..c {
+                for j in 0..c {
+                    a[i * c + j] += (row[i] - mean[i]) * (row[j] - mean[j]);
+                }
+            }
+        }
+        let mut v = vec![0.0; c * c];
+        for i in 0..c {
+            v[i * c + i] = 1.0;
+        }
+        for _sweep in 0..50 {
+            let off: f64 = (0..c)
+                .flat_map(|i| (0..c).filter(move |&j| j != i).map(move |j| (i, j)))
+                .map(|(i, j)| a[i * c + j] * a[i * c + j])
+                .sum();
+            let diag: f64 = (0..c).map(|i| a[i * c + i] * a[i * c + i]).sum();
+            if off <= 1e-30 * diag.max(f64::MIN_POSITIVE) {
+                break;
+            }
+            for p in 0..c {
+                for q in p + 1..c {
+                    let apq = a[p * c + q];
+                    if apq == 0.0 {
+                        continue;
+                    }
+                    let theta = (a[q * c + q] - a[p * c + p]) / (2.0 * apq);
+                    let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                    let t = if theta == 0.0 { 1.0 } else { t };
+                    let cs = 1.0 / (t * t + 1.0).sqrt();
+                    let sn = t * cs;
+                    for k in 0..c {
+                        let akp = a[k * c + p];
+                        let akq = a[k * c + q];
+                        a[k * c + p] = cs * akp - sn * akq;
+                        a[k * c + q] = sn * akp + cs * akq;
+                    }
+                    for k in 0..c {
+                        let apk = a[p * c + k];
+                        let aqk = a[q * c + k];
+                        a[p * c + k] = cs * apk - sn * aqk;
+                        a[q * c + k] = sn * apk + cs * aqk;
+                    }
+                    for k in 0..c {
+                        let vkp = v[k * c + p];
+                        let vkq = v[k * c + q];
+                        v[k * c + p] = cs * vkp - sn * vkq;
+                        v[k * c + q] = sn * vkp + cs * vkq;
+                    }
+                }
+            }
+        }
+        let mut order: Vec<usize> = (0..c).collect();
+        order.sort_by(|&i, &j| a[j * c + j].total_cmp(&a[i * c + i]));
+        let mut m = vec![0.0; c * c];
+        for (r, &col) in order.iter().enumerate() {
+            let mut vec: Vec<f64> = (0..c).map(|k| v[k * c + col]).collect();
+            let big = vec
+                .iter()
+                .copied()
+                .fold(0.0f64, |b, x| if x.abs() > b.abs() { x } else { b });
+            if big < 0.0 {
+                vec.iter_mut().for_each(|x| *x = -*x);
+            }
+            let norm = vec.iter().map(|x| x * x).sum::<f64>().sqrt();
+            for k in 0..c {
+                m[r * c + k] = vec[k] / norm;
+            }
+        }
+        Colour { matrix: m }
+    }
+
+    /// z = M y for one cell.
+    #[inline]
+    pub fn forward(&self, y: &[f64], z: &mut [f64]) {
+        let c = y.len();
+        for (i, zi) in z.iter_mut().enumerate() {
+            *zi = (0..c).map(|k| self.matrix[i * c + k] * y[k]).sum();
+        }
+    }
+
+    /// y = Mᵀ z for one cell.
+    #[inline]
+    pub fn inverse(&self, z: &[f64], y: &mut [f64]) {
+        let c = z.len();
+        for (k, yk) in y.iter_mut().enumerate() {
+            *yk = (0..c).map(|i| self.matrix[i * c + k] * z[i]).sum();
+        }
+    }
+}
+
+/// Stage (2) as recorded: a curve and an optional colour decorrelation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Transform {
+    #[serde(flatten)]
+    pub curve: Curve,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub colour: Option<Colour>,
+}
+
+impl Transform {
+    pub fn validate(&self, channels: usize) -> Result<()> {
+        self.curve.validate(channels)?;
+        if let Some(col) = &self.colour {
+            col.validate(channels)?;
+        }
+        Ok(())
+    }
+
+    /// Transformed components of every cell (cell-major, component fastest), in f64.
+    pub fn forward_all(&self, data: &[f32], c: usize) -> Vec<f64> {
+        let mut out = vec![0.0; data.len()];
+        let mut y = vec![0.0; c];
+        for (cell, o) in data.chunks_exact(c).zip(out.chunks_exact_mut(c)) {
+            for k in 0..c {
+                y[k] = self.curve.forward(cell[k] as f64, k);
+            }
+            match &self.colour {
+                Some(col) => col.forward(&y, o),
+                None => o.copy_from_slice(&y),
+            }
+        }
+        out
+    }
+
+    /// One cell back from transformed components.
+    #[inline]
+    pub fn inverse_cell(&self, z: &[f64], y: &mut [f64], out: &mut [f32]) {
+        match &self.colour {
+            Some(col) => col.inverse(z, y),
+            None => y.copy_from_slice(z),
+        }
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = self.curve.inverse(y[k], k) as f32;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn klt_of_proportional_channels_puts_all_variance_in_one_component() {
+        // y_k = a_k + s: the covariance is rank one along (1,1,1)/√3.
+        let mut s = Vec::new();
+        for i in 0..100 {
+            let t = (i as f64 * 0.37).sin();
+            s.extend_from_slice(&[t + 1.0, t - 2.0, t + 0.5]);
+        }
+        let col = Colour::klt(&s, 3);
+        col.validate(3).unwrap();
+        let r3 = 1.0 / 3f64.sqrt();
+        for k in 0..3 {
+            assert!((col.matrix[k] - r3).abs() < 1e-9, "{:?}", col.matrix);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn transform_round_trips(x in prop::collection::vec(0.0f32..1e4, 3), e in 1e-6f64..1.0,
+                                 a in -3.0f64..3.0) {
+            let c = Colour { matrix: {
+                let (s, co) = a.sin_cos();
+                vec![co, s, 0.0, -s, co, 0.0, 0.0, 0.0, 1.0]
+            }};
+            let t = Transform { curve: Curve::Log { eps: vec![e; 3] }, colour: Some(c) };
+            t.validate(3).unwrap();
+            let z = t.forward_all(&x, 3);
+            let mut y = [0.0; 3];
+            let mut back = [0f32; 3];
+            t.inverse_cell(&z, &mut y, &mut back);
+            for k in 0..3 {
+                prop_assert!((back[k] - x[k]).abs() <= 1e-5 * (x[k] + e as f32) + 1e-6);
+            }
+        }
+    }
+}

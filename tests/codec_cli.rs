@@ -1,0 +1,95 @@
+//! `brdfpack compress` end to end on a small self-made table.
+
+use assert_cmd::Command;
+use brdfpack::codec::{CodecSpec, testdata};
+use brdfpack::grid::parse_grid_spec;
+use brdfpack::io::native;
+use brdfpack::tabulate::tabulate;
+use std::path::Path;
+
+fn small_table_file(dir: &Path) -> std::path::PathBuf {
+    let g = parse_grid_spec("halfdiff3:16x16x24").unwrap();
+    let t = tabulate(&testdata::GgxConductor::new(0.3), &g, &Default::default()).unwrap();
+    let p = dir.join("in.bpk");
+    std::fs::write(&p, native::to_bytes(&t, &CodecSpec::default()).unwrap()).unwrap();
+    p
+}
+
+#[test]
+fn compress_with_a_budget_writes_a_file_that_meets_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = small_table_file(dir.path());
+    let out = dir.path().join("out.bpk");
+    let a = Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "compress",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .args([
+            "--max-error",
+            "log_rmse=0.01,p99_rel_core=0.2",
+            "--samples",
+            "4096",
+        ])
+        .assert()
+        .success();
+    let stdout = String::from_utf8(a.get_output().stdout.clone()).unwrap();
+    assert!(stdout.contains("\"kind\":\"dct\""), "{stdout}");
+    let log_rmse: f64 = stdout
+        .split("log_rmse ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap();
+    assert!(log_rmse <= 0.01, "{stdout}");
+    let bytes = std::fs::read(&out).unwrap();
+    let t = native::from_bytes(&bytes, &out).unwrap();
+    assert!(t.data().iter().all(|v| v.is_finite() && *v >= 0.0));
+}
+
+#[test]
+fn compress_lossless_is_bit_exact_and_bad_specs_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = small_table_file(dir.path());
+    let out = dir.path().join("out.bpk");
+    Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "compress",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .args(["--codec", "lossless", "--samples", "1024"])
+        .assert()
+        .success();
+    let a = native::from_bytes(&std::fs::read(&input).unwrap(), &input).unwrap();
+    let b = native::from_bytes(&std::fs::read(&out).unwrap(), &out).unwrap();
+    assert_eq!(a.data(), b.data());
+    Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "compress",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .args(["--codec", "dct:step=-1"])
+        .assert()
+        .code(2)
+        .stderr(predicates::str::contains("step"));
+    Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "compress",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .args(["--max-error", "bogus=1"])
+        .assert()
+        .code(2);
+}

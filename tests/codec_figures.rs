@@ -1,0 +1,184 @@
+//! The figures of docs/compression.md. Slow (minutes): run with
+//! `cargo test --release --test codec_figures -- --ignored --nocapture`.
+//! Each case asserts the targets of issue 5 it is meant to meet and prints its figures.
+
+use brdfpack::check::{SampleSet, check_set};
+use brdfpack::codec::search::{Budget, search};
+use brdfpack::codec::{CodecRequest, CodecSpec, Layout, testdata};
+use brdfpack::grid::parse_grid_spec;
+use brdfpack::io::native;
+use brdfpack::table::{Interp, InterpolatedTable, Table};
+use brdfpack::tabulate::tabulate;
+use std::path::Path;
+use std::time::Instant;
+
+fn zstd19_raw(t: &Table) -> usize {
+    let raw: Vec<u8> = t.data().iter().flat_map(|v| v.to_le_bytes()).collect();
+    zstd::bulk::compress(&raw, 19).unwrap().len()
+}
+
+/// Median decode time (single thread: the decoders do not spawn) over `n` runs, in seconds.
+fn decode_seconds(spec: &CodecSpec, payload: &[u8], t: &Table, n: usize) -> f64 {
+    let mut v: Vec<f64> = (0..n)
+        .map(|_| {
+            let t0 = Instant::now();
+            let d = spec.decode(payload, &Layout::of(t)).unwrap();
+            std::hint::black_box(d);
+            t0.elapsed().as_secs_f64()
+        })
+        .collect();
+    v.sort_by(f64::total_cmp);
+    v[n / 2]
+}
+
+fn lossless_case(name: &str, t: &Table) {
+    let z19 = zstd19_raw(t);
+    let spec = CodecRequest::parse("lossless").unwrap().resolve(t).unwrap();
+    let file = native::to_bytes(t, &spec).unwrap();
+    let back = native::from_bytes(&file, Path::new("x.bpk")).unwrap();
+    assert!(
+        back.data()
+            .iter()
+            .zip(t.data())
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
+    let payload = spec.encode(t).unwrap();
+    let secs = decode_seconds(&spec, &payload, t, 5);
+    let gbs = (t.data().len() * 4) as f64 / secs / 1e9;
+    println!(
+        "LOSSLESS {name}: raw f32 {} B, zstd-19(raw) {z19} B, file {} B = {:.3}× zstd-19; \
+         predictor {:?}; decode {:.1} ms = {gbs:.2} GB/s f32 out",
+        t.data().len() * 4,
+        file.len(),
+        file.len() as f64 / z19 as f64,
+        match &spec {
+            CodecSpec::Lossless { predict, .. } => predict.clone(),
+            _ => unreachable!(),
+        },
+        secs * 1e3
+    );
+    assert!(
+        file.len() as f64 <= 0.4 * z19 as f64,
+        "{name}: lossless target 0.4× zstd-19"
+    );
+}
+
+fn budget_case(name: &str, t: &Table, budget: &str, max_file: usize) -> bool {
+    let b = Budget::parse(budget).unwrap();
+    let set = SampleSet::uniform(65_536, 1);
+    let t0 = Instant::now();
+    let r = search(t, &b, &set, 19).unwrap();
+    let search_s = t0.elapsed().as_secs_f64();
+    let file = native::to_bytes(t, &r.best.spec).unwrap();
+    // Independent recomputation: read the file back and run check_set on it.
+    let back = native::from_bytes(&file, Path::new("x.bpk")).unwrap();
+    let rep = check_set(
+        &InterpolatedTable {
+            table: t.clone(),
+            interp: Interp::Linear,
+        },
+        &InterpolatedTable {
+            table: back,
+            interp: Interp::Linear,
+        },
+        &set,
+    )
+    .unwrap();
+    let held = check_set(
+        &InterpolatedTable {
+            table: t.clone(),
+            interp: Interp::Linear,
+        },
+        &InterpolatedTable {
+            table: native::from_bytes(&file, Path::new("x.bpk")).unwrap(),
+            interp: Interp::Linear,
+        },
+        &SampleSet::uniform(65_536, 2),
+    )
+    .unwrap();
+    let m = &r.best.metrics;
+    let i = &rep.combined;
+    let secs = decode_seconds(&r.best.spec, &r.best.payload, t, 3);
+    let gbs = (t.data().len() * 4) as f64 / secs / 1e9;
+    println!(
+        "BUDGET {name} [{budget}]: file {} B (payload {} B, limit {max_file}) log_rmse {:.4e} \
+         p99_rel_core {:.4e} (recomputed {:.4e} / {:.4e}; held-out seed 2: {:.4e} / {:.4e}); \
+         negative {} nonfinite {}; decode {:.1} ms = {gbs:.2} GB/s; search {search_s:.1} s, {} trials; {}",
+        file.len(),
+        r.best.payload.len(),
+        m.log_rmse,
+        m.p99_rel_core,
+        i.log_rmse,
+        i.p99_rel_core,
+        held.combined.log_rmse,
+        held.combined.p99_rel_core,
+        i.negative,
+        i.nonfinite,
+        secs * 1e3,
+        r.trials.len(),
+        r.best.spec.summary()
+    );
+    for (k, v) in &b.bounds {
+        let (a, c) = (m.get(k).unwrap(), i.get(k).unwrap());
+        assert!(
+            (a - c).abs() <= 0.02 * c.max(1e-300),
+            "{name}: {k} {a} vs recomputed {c}"
+        );
+        assert!(c <= *v, "{name}: {k} {c} > {v}");
+    }
+    file.len() <= max_file
+}
+
+const PREVIEW: &str = "log_rmse=0.01,p99_rel_core=0.2";
+const PRODUCTION: &str = "log_rmse=0.002,p99_rel_core=0.05";
+
+#[test]
+#[ignore]
+fn figures_merl_grid() {
+    let mut cases = vec![("ggx-au-0.2".to_string(), testdata::ggx_merl(0.2))];
+    for m in ["gold-metallic-paint", "white-diffuse-bball"] {
+        if let Some(t) = testdata::shared_merl(m) {
+            cases.push((m.to_string(), t));
+        }
+    }
+    let mut misses = Vec::new();
+    for (name, t) in &cases {
+        if name != "white-diffuse-bball" {
+            lossless_case(name, t);
+        }
+        if !budget_case(name, t, PREVIEW, 4096) {
+            misses.push(format!("{name} preview"));
+        }
+        if !budget_case(name, t, PRODUCTION, 24 * 1024) {
+            misses.push(format!("{name} production"));
+        }
+    }
+    println!("size targets missed: {misses:?}");
+}
+
+#[test]
+#[ignore]
+fn figures_ward_halfdiff4() {
+    let g = parse_grid_spec("halfdiff4:64").unwrap();
+    let src = testdata::WardAniso::new(0.05, 0.1, 0.1, 0.3);
+    let t = tabulate(&src, &g, &Default::default()).unwrap();
+    let ok = budget_case("ward-aniso halfdiff4:64", &t, PRODUCTION, 48 * 1024);
+    println!("ward production within 48 KB: {ok}");
+}
+
+#[test]
+#[ignore]
+fn figures_tiny_alpha_packs_without_inf() {
+    let t = testdata::ggx_merl(0.0005);
+    for s in ["lossless", "f16", "f16:curve=linear", "dct:step=0.01"] {
+        let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+        let file = native::to_bytes(&t, &spec).unwrap();
+        let back = native::from_bytes(&file, Path::new("x.bpk")).unwrap();
+        let max = back.data().iter().fold(0f32, |m, v| m.max(*v));
+        assert!(
+            back.data().iter().all(|v| v.is_finite() && *v >= 0.0),
+            "{s}"
+        );
+        println!("ALPHA 5e-4 {s}: {} B, max decoded {max:.4e}", file.len());
+    }
+}
