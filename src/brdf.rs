@@ -98,4 +98,10 @@ pub trait Brdf: Send + Sync {
 
     /// A one-line description of the source for provenance and reports.
     fn describe(&self) -> String;
+
+    /// Notes that a table of this source must carry in its provenance: what the source has
+    /// that a table cannot hold (e.g. HTSG's specular delta). None by default.
+    fn provenance_notes(&self) -> Vec<String> {
+        Vec::new()
+    }
 }

@@ -15,6 +15,7 @@ pub mod grid;
 pub mod io;
 pub mod math;
 pub mod model;
+pub mod spectral;
 pub mod table;
 pub mod tabulate;
 

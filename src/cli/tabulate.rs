@@ -25,6 +25,10 @@ pub struct TabulateArgs {
     /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0); recorded in the file.
     #[arg(long)]
     pub allow_anisotropic: bool,
+    /// Convert spectral channels to linear sRGB before writing (CIE 1931 2°, D65; see
+    /// docs/spectral.md). An error when the source is not spectral.
+    #[arg(long)]
+    pub to_rgb: bool,
     /// zstd level of the lossless payload (1–22).
     #[arg(long, default_value_t = 19, value_parser = clap::value_parser!(i32).range(1..=22))]
     pub zstd_level: i32,
@@ -45,6 +49,11 @@ pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
             progress: stderr_is_terminal(),
         },
     )?;
+    let table = if a.to_rgb {
+        crate::spectral::spectral_to_rgb(&table)?
+    } else {
+        table
+    };
     let dt = t0.elapsed();
     for note in &table.provenance().notes {
         eprintln!("brdfpack: note: {note}");
