@@ -15,6 +15,8 @@ pub mod grid;
 pub mod io;
 pub mod math;
 pub mod model;
+pub mod props;
+pub mod source;
 pub mod spectral;
 pub mod table;
 pub mod tabulate;

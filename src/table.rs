@@ -31,6 +31,20 @@ pub enum Interp {
     Linear,
 }
 
+/// The f64 numbers a source stored, kept beside the f32 samples when f32 storage would
+/// lose them (a MERL `.binary` file holds f64), so a table read from such a file can be
+/// written back byte for byte. Physical value = `raw[cell * channels + c] × scale[c]`;
+/// for every valid cell `data == (raw × scale) as f32` (checked by [`Table::with_exact`]).
+/// Invalid cells keep whatever the source stored there (e.g. MERL's −1 markers).
+/// Any operation that computes new samples (tabulation, re-gridding) drops it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExactValues {
+    /// Per-channel factor from the stored numbers to 1/sr (MERL: 1/1500, 1.15/1500, 1.66/1500).
+    pub scale: Vec<f64>,
+    /// Cell-major, channel fastest, like [`Table::data`].
+    pub raw: Vec<f64>,
+}
+
 /// A BRDF tabulated on a grid. Data are cell-major, channel fastest:
 /// `data[cell * channels + c]`. Invalid cells (below the horizon, outside the stored
 /// domain, or marked missing in a measured source) hold 0 and are never interpolated from.
@@ -41,6 +55,8 @@ pub struct Table {
     provenance: Provenance,
     data: Vec<f32>,
     valid: Vec<bool>,
+    /// The source's own f64 values when f32 would lose them (see [`ExactValues`]).
+    exact: Option<ExactValues>,
 }
 
 impl Table {
@@ -79,7 +95,61 @@ impl Table {
             provenance,
             data,
             valid,
+            exact: None,
         })
+    }
+
+    /// Attaches the source's exact f64 values, checking that they are finite, that the
+    /// scales are finite and positive, and that every valid cell's f32 sample is their
+    /// rounding (so the two can never disagree).
+    pub fn with_exact(mut self, exact: ExactValues) -> Result<Table> {
+        let c = self.channels.len();
+        if exact.scale.len() != c || exact.raw.len() != self.data.len() {
+            return Err(Error::input(format!(
+                "exact values: {} scales and {} values for {c} channels × {} cells",
+                exact.scale.len(),
+                exact.raw.len(),
+                self.valid.len()
+            )));
+        }
+        if let Some(s) = exact.scale.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
+            return Err(Error::input(format!(
+                "exact values: scale {s} is not finite and positive"
+            )));
+        }
+        for (i, &r) in exact.raw.iter().enumerate() {
+            if !r.is_finite() {
+                return Err(Error::input(format!(
+                    "exact values: value {i} (cell {}, channel {}) is {r}",
+                    i / c,
+                    i % c
+                )));
+            }
+            let cell = i / c;
+            let want = (r * exact.scale[i % c]) as f32;
+            if self.valid[cell] && want.to_bits() != self.data[i].to_bits() {
+                return Err(Error::input(format!(
+                    "exact values: cell {cell} channel {} holds {} but the exact value {r} × {} \
+                     rounds to {want}",
+                    i % c,
+                    self.data[i],
+                    exact.scale[i % c]
+                )));
+            }
+        }
+        self.exact = Some(exact);
+        Ok(self)
+    }
+
+    /// The source's exact f64 values, when the table carries them.
+    pub fn exact(&self) -> Option<&ExactValues> {
+        self.exact.as_ref()
+    }
+
+    /// Drops the exact f64 values (e.g. before a lossy encoding).
+    pub fn without_exact(mut self) -> Table {
+        self.exact = None;
+        self
     }
 
     pub fn grid(&self) -> &Grid {

@@ -218,3 +218,47 @@ fn bad_inputs_exit_2_with_a_message_and_no_output_file() {
         .assert()
         .code(2);
 }
+
+#[test]
+fn a_killed_run_leaves_the_previous_file_intact() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("table.bpk");
+    std::fs::write(&out, b"previous contents").unwrap();
+    let bin = assert_cmd::cargo::cargo_bin("brdfpack");
+    // A 64⁴ anisotropic table takes seconds: long enough to be killed mid-run.
+    let mut child = std::process::Command::new(bin)
+        .args([
+            "tabulate",
+            "ggx:alpha_x=0.1,alpha_y=0.4,fresnel=au",
+            "--grid",
+            "halfdiff4:64",
+            "-o",
+        ])
+        .arg(&out)
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    child.kill().unwrap();
+    let status = child.wait().unwrap();
+    assert!(
+        !status.success(),
+        "the run finished before it could be killed"
+    );
+    assert_eq!(std::fs::read(&out).unwrap(), b"previous contents");
+}
+
+#[test]
+fn a_failed_run_leaves_the_previous_file_intact_and_no_temporary() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("table.bpk");
+    std::fs::write(&out, b"previous contents").unwrap();
+    // The mirror is refused after the output path is known: nothing may be written.
+    brdfpack()
+        .args(["tabulate", "mirror", "--grid", "halfdiff3:8", "-o"])
+        .arg(&out)
+        .assert()
+        .code(2)
+        .stderr(predicate::str::contains("mirror"));
+    assert_eq!(std::fs::read(&out).unwrap(), b"previous contents");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}

@@ -1,8 +1,7 @@
 //! `brdfpack check`: round-trip error of a table (or any source) against a reference.
 
-use super::common::Source;
+use super::common::{Lookup, Source};
 use crate::check::{CheckOptions, check};
-use crate::table::Interp;
 use clap::Args;
 
 /// Bounds on metrics: exceeding any makes the command exit 1 (a build step can gate on it).
@@ -65,8 +64,8 @@ pub struct CheckArgs {
     #[arg(long)]
     pub against: String,
     /// Interpolation used for tables.
-    #[arg(long, value_enum, default_value_t = Interp::Linear)]
-    pub interp: Interp,
+    #[arg(long, value_enum, default_value_t = Lookup::Linear)]
+    pub interp: Lookup,
     /// Pairs in the uniform set (the other sets use a quarter as many).
     #[arg(long, default_value_t = 65_536)]
     pub samples: usize,
@@ -95,7 +94,7 @@ pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
     let cand = Source::open(&a.candidate)?;
     let cells = match &cand {
         Source::Table(t) => Some((t.grid().clone(), t.valid().to_vec())),
-        Source::Model(_) => None,
+        Source::Model(_) | Source::Measured(_) => None,
     };
     let cand = cand.into_brdf(a.interp)?;
     let reference = Source::open(&a.against)?.into_brdf(a.interp)?;

@@ -1,52 +1,74 @@
-//! Plumbing shared by subcommands: opening sources, writing tables.
+//! Plumbing shared by subcommands: output format flags, writing tables, terminals.
 
-use crate::brdf::Brdf;
 use crate::codec::CodecSpec;
-use crate::io::{atomic, native};
-use crate::model::Model;
-use crate::table::{Interp, InterpolatedTable, Table};
+use crate::grid::Grid;
+use crate::io::exr::{ExrCompression, ExrOptions, ExrSampleType};
+use crate::io::merl::merl_dims;
+use crate::io::{FormatName, OutputFormat, atomic, encode_table};
+use crate::table::Table;
+use crate::{Error, Result};
+use clap::Args;
 use std::io::IsTerminal;
 use std::path::Path;
 
-/// A BRDF source opened from the command line: a table file or an analytic model.
-pub enum Source {
-    Table(Table),
-    Model(Model),
+pub use crate::source::{Lookup, Source};
+
+/// How a table is written: the format (from the output name or `--format`) and its options.
+#[derive(Args, Debug, Clone)]
+pub struct OutputArgs {
+    /// Output format; default from the output name: .bpk native, .exr EXR, .binary MERL
+    /// (and native for `-`, stdout).
+    #[arg(long, value_enum, help_heading = "Output")]
+    pub format: Option<FormatName>,
+    /// EXR sample type (f16 values above 65504 are scaled by a recorded power of two).
+    #[arg(long, value_enum, default_value_t = ExrSampleType::F32, help_heading = "Output")]
+    pub exr_type: ExrSampleType,
+    /// EXR compression; lossless by default (pxr24 is lossy for f32 and only used when named).
+    #[arg(long, value_enum, default_value_t = ExrCompression::Zip, help_heading = "Output")]
+    pub exr_compression: ExrCompression,
+    /// zstd level of the native format's lossless payload (1–22).
+    #[arg(long, default_value_t = 19, value_parser = clap::value_parser!(i32).range(1..=22), help_heading = "Output")]
+    pub zstd_level: i32,
 }
 
-impl Source {
-    /// Opens `spec`: an existing file (or `-`) is read as a table; anything else is parsed
-    /// as a model spec.
-    pub fn open(spec: &str) -> crate::Result<Source> {
-        let path = Path::new(spec);
-        if spec == "-" || path.is_file() {
-            let bytes = atomic::read_input(path)?;
-            if native::is_native(&bytes) {
-                return Ok(Source::Table(native::from_bytes(&bytes, path)?));
-            }
-            return Err(crate::Error::invalid_file(
-                path,
-                "not a recognised table format (expected a brdfpack .bpk file)",
-            ));
+impl OutputArgs {
+    /// The format for `path`, checking that `grid` can be written in it.
+    pub fn resolve(&self, path: &Path, grid: &Grid) -> Result<OutputFormat> {
+        let format = self
+            .format
+            .or_else(|| FormatName::from_path(path))
+            // stdout: the native format unless told otherwise.
+            .or((path.as_os_str() == "-").then_some(FormatName::Native))
+            .ok_or_else(|| {
+                Error::input(format!(
+                    "-o {}: cannot tell the output format from the name; use .bpk, .exr or \
+                     .binary, or --format native|exr|merl",
+                    path.display()
+                ))
+            })?;
+        if format == FormatName::Merl && merl_dims(grid).is_none() {
+            return Err(Error::input(format!(
+                "--grid {}: MERL .binary needs a halfdiff3 grid with warps sqrt/linear/linear at \
+                 the lower bin edges (e.g. `merl`)",
+                grid.describe()
+            )));
         }
-        Ok(Source::Model(Model::parse(spec)?))
-    }
-
-    /// The source as a BRDF (tables interpolated by `interp`).
-    pub fn into_brdf(self, interp: Interp) -> crate::Result<Box<dyn Brdf>> {
-        Ok(match self {
-            Source::Table(table) => Box::new(InterpolatedTable { table, interp }),
-            Source::Model(m) => {
-                m.check_tabulable()?;
-                Box::new(m)
-            }
+        Ok(match format {
+            FormatName::Native => OutputFormat::Native(CodecSpec::ZstdF32 {
+                level: self.zstd_level,
+            }),
+            FormatName::Exr => OutputFormat::Exr(ExrOptions {
+                sample_type: self.exr_type,
+                compression: self.exr_compression,
+            }),
+            FormatName::Merl => OutputFormat::Merl,
         })
     }
 }
 
-/// Encodes and writes a table to `path` (`-` for stdout) atomically; returns the bytes written.
-pub fn write_table(table: &Table, path: &Path, codec: &CodecSpec) -> crate::Result<usize> {
-    let bytes = native::to_bytes(table, codec)?;
+/// Encodes and writes a table atomically (`-` for stdout); returns the bytes written.
+pub fn write_table(table: &Table, path: &Path, format: &OutputFormat) -> Result<usize> {
+    let bytes = encode_table(table, format)?;
     atomic::write_output(path, &bytes)?;
     Ok(bytes.len())
 }

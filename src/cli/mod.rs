@@ -6,9 +6,12 @@ use std::io::Write;
 
 mod check;
 mod common;
+mod convert;
 mod eval;
+mod inspect;
 mod models;
 mod pack;
+mod props;
 mod tabulate;
 
 /// brdfpack: turn BRDFs into compact tables and back.
@@ -22,6 +25,7 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
+    #[command(long_about = eval::LONG_ABOUT)]
     Eval(eval::EvalArgs),
     /// Sample a model (or table) onto a grid and write the table.
     Tabulate(tabulate::TabulateArgs),
@@ -31,6 +35,14 @@ enum Command {
     Pack(pack::PackArgs),
     /// List the analytic models with their parameters, defaults, ranges and properties.
     Models(models::ModelsArgs),
+    /// Report positivity, reciprocity, isotropy and directional albedo of a model or table.
+    #[command(long_about = props::LONG_ABOUT)]
+    Props(props::PropsArgs),
+    /// Convert a table (native .bpk, brdfpack .exr, MERL .binary) or a model to another
+    /// format or grid; re-grids by interpolation when the grid changes.
+    Convert(convert::ConvertArgs),
+    /// Describe a table file: format, grid, channels, provenance, value statistics.
+    Inspect(inspect::InspectArgs),
 }
 
 /// Runs the CLI and returns the process exit code.
@@ -49,6 +61,9 @@ pub fn main() -> i32 {
         Command::Check(a) => check::run(a),
         Command::Pack(a) => pack::run(a),
         Command::Models(a) => models::run(a),
+        Command::Props(a) => props::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Inspect(a) => inspect::run(a),
     };
     match result {
         Ok(code) => code,

@@ -2,7 +2,7 @@
 //! check against the source, and report sizes, times and errors.
 
 use super::check::{Bounds, verdict};
-use super::common::{Source, stderr_is_terminal};
+use super::common::{Lookup, Source, stderr_is_terminal};
 use crate::check::{CheckOptions, check, fmt_num};
 use crate::codec::CodecSpec;
 use crate::grid::parse_grid_spec;
@@ -70,7 +70,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         Some(s) => Source::open(s)?,
         None => Source::Model(Model::default_material()),
     };
-    let src = source.into_brdf(Interp::Linear)?;
+    let src = source.into_brdf(Lookup::Linear)?;
     let t0 = Instant::now();
     let table = tabulate(
         src.as_ref(),

@@ -1,9 +1,7 @@
 //! `brdfpack tabulate`: sample a source onto a grid and write the table.
 
-use super::common::{Source, stderr_is_terminal, write_table};
-use crate::codec::CodecSpec;
+use super::common::{Lookup, OutputArgs, Source, stderr_is_terminal, write_table};
 use crate::grid::parse_grid_spec;
-use crate::table::Interp;
 use crate::tabulate::{TabulateOptions, tabulate};
 use clap::Args;
 use std::path::PathBuf;
@@ -16,12 +14,12 @@ pub struct TabulateArgs {
     /// (KIND spherical4|spherical3|halfdiff3|halfdiff4; see docs/parameterizations.md).
     #[arg(long, default_value = "merl")]
     pub grid: String,
-    /// Output file (`-` for stdout).
+    /// Output file (`-` for stdout, with --format).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Interpolation when the source is a table.
-    #[arg(long, value_enum, default_value_t = Interp::Linear)]
-    pub interp: Interp,
+    #[arg(long, value_enum, default_value_t = Lookup::Linear)]
+    pub interp: Lookup,
     /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0); recorded in the file.
     #[arg(long)]
     pub allow_anisotropic: bool,
@@ -29,9 +27,8 @@ pub struct TabulateArgs {
     /// docs/spectral.md). An error when the source is not spectral.
     #[arg(long)]
     pub to_rgb: bool,
-    /// zstd level of the lossless payload (1–22).
-    #[arg(long, default_value_t = 19, value_parser = clap::value_parser!(i32).range(1..=22))]
-    pub zstd_level: i32,
+    #[command(flatten)]
+    pub out: OutputArgs,
     /// Print one line of statistics on stderr.
     #[arg(short, long)]
     pub verbose: bool,
@@ -39,6 +36,7 @@ pub struct TabulateArgs {
 
 pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
     let grid = parse_grid_spec(&a.grid)?;
+    let format = a.out.resolve(&a.output, &grid)?;
     let src = Source::open(&a.source)?.into_brdf(a.interp)?;
     let t0 = std::time::Instant::now();
     let table = tabulate(
@@ -58,13 +56,7 @@ pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
     for note in &table.provenance().notes {
         eprintln!("brdfpack: note: {note}");
     }
-    let bytes = write_table(
-        &table,
-        &a.output,
-        &CodecSpec::ZstdF32 {
-            level: a.zstd_level,
-        },
-    )?;
+    let bytes = write_table(&table, &a.output, &format)?;
     if a.verbose {
         eprintln!(
             "tabulated {} cells ({} valid) × {} channels in {:.3} s; wrote {} bytes",

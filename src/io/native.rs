@@ -10,12 +10,15 @@
 //! ```
 //! Sections in order: `HEAD` (UTF-8 JSON header), `DATA` (codec payload), optionally `MASK`
 //! (zstd of the validity bitmap, LSB first, when it differs from the grid's geometric mask),
-//! and `END ` (empty) last, so a file cut at a section boundary is still detected.
+//! optionally `F64X` (zstd of the table's exact f64 values, little-endian, same order as the
+//! samples, when the table carries them; such files are version 1.1), and `END ` (empty)
+//! last, so a file cut at a section boundary is still detected.
 
 use crate::brdf::Channels;
 use crate::codec::CodecSpec;
 use crate::grid::{Grid, GridDesc};
-use crate::table::{Provenance, Table};
+use crate::io::ExactDesc;
+use crate::table::{ExactValues, Provenance, Table};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -23,6 +26,11 @@ use std::path::Path;
 pub const MAGIC: [u8; 8] = *b"\x89BPK\r\n\x1a\n";
 pub const VERSION_MAJOR: u16 = 1;
 pub const VERSION_MINOR: u16 = 0;
+/// Minor version of files with an `F64X` section (1.0 readers refuse the unknown section).
+pub const VERSION_MINOR_EXACT: u16 = 1;
+/// zstd level of the `F64X` section: its low mantissa bits hardly compress, so a high level
+/// costs seconds on a MERL-sized table for a percent or two.
+const EXACT_ZSTD_LEVEL: i32 = 3;
 /// Largest header accepted (a real one is a few KB).
 const MAX_HEADER: u64 = 16 << 20;
 const MAX_SECTIONS: u32 = 16;
@@ -45,6 +53,9 @@ pub struct Header {
     pub mask: MaskKind,
     /// Number of valid cells (a consistency check).
     pub valid_cells: usize,
+    /// Present when an `F64X` section holds the source's exact f64 values.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exact: Option<ExactDesc>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -70,6 +81,7 @@ pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
         codec: codec.clone(),
         mask,
         valid_cells: table.valid_count(),
+        exact: table.exact().map(|e| ExactDesc::new(&e.scale)),
     };
     let head = serde_json::to_vec_pretty(&header)
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
@@ -86,11 +98,24 @@ pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
             .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
         sections.push((*b"MASK", z));
     }
+    let minor = match table.exact() {
+        Some(e) => {
+            let mut raw = Vec::with_capacity(e.raw.len() * 8);
+            for v in &e.raw {
+                raw.extend_from_slice(&v.to_le_bytes());
+            }
+            let z = zstd::bulk::compress(&raw, EXACT_ZSTD_LEVEL)
+                .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
+            sections.push((*b"F64X", z));
+            VERSION_MINOR_EXACT
+        }
+        None => VERSION_MINOR,
+    };
     sections.push((*b"END ", Vec::new()));
     let mut out = Vec::new();
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&VERSION_MAJOR.to_le_bytes());
-    out.extend_from_slice(&VERSION_MINOR.to_le_bytes());
+    out.extend_from_slice(&minor.to_le_bytes());
     out.extend_from_slice(&(sections.len() as u32).to_le_bytes());
     let pre = crc32fast::hash(&out);
     out.extend_from_slice(&pre.to_le_bytes());
@@ -175,17 +200,24 @@ fn sections<'a>(bytes: &'a [u8], path: &Path) -> Result<Vec<([u8; 4], &'a [u8])>
         )));
     }
     let tags: Vec<[u8; 4]> = out.iter().map(|(t, _)| *t).collect();
+    // Optional sections between DATA and END, in this order.
+    let middle: &[[u8; 4]] = if tags.len() >= 3 {
+        &tags[2..tags.len() - 1]
+    } else {
+        &[]
+    };
+    let allowed: [&[[u8; 4]]; 4] = [&[], &[*b"MASK"], &[*b"F64X"], &[*b"MASK", *b"F64X"]];
     let ok = tags.first() == Some(b"HEAD")
         && tags.get(1) == Some(b"DATA")
         && tags.last() == Some(b"END ")
-        && (tags.len() == 3 || (tags.len() == 4 && &tags[2] == b"MASK"));
+        && allowed.contains(&middle);
     if !ok {
         let names: Vec<String> = tags
             .iter()
             .map(|t| String::from_utf8_lossy(t).into_owned())
             .collect();
         return Err(bad(format!(
-            "sections {names:?}: expected HEAD, DATA, [MASK,] END"
+            "sections {names:?}: expected HEAD, DATA, [MASK,] [F64X,] END"
         )));
     }
     Ok(out)
@@ -280,7 +312,40 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
         .checked_mul(channels.len())
         .ok_or_else(|| Error::invalid_file(path, "table size overflows"))?;
     let data = h.codec.decode(secs[1].1, values).map_err(in_file)?;
-    Table::new(grid, channels, h.provenance, data, valid).map_err(in_file)
+    let table = Table::new(grid, channels, h.provenance, data, valid).map_err(in_file)?;
+    let f64x = secs.iter().find(|(t, _)| t == b"F64X").map(|s| s.1);
+    match (&h.exact, f64x) {
+        (None, None) => Ok(table),
+        (Some(desc), Some(z)) => {
+            let scale = desc.scale().map_err(in_file)?;
+            let want = values
+                .checked_mul(8)
+                .ok_or_else(|| Error::invalid_file(path, "table size overflows"))?;
+            let raw = zstd::bulk::decompress(z, want)
+                .map_err(|e| Error::invalid_file(path, format!("F64X section: {e}")))?;
+            if raw.len() != want {
+                return Err(Error::invalid_file(
+                    path,
+                    format!("F64X section holds {} bytes, expected {want}", raw.len()),
+                ));
+            }
+            let raw = raw
+                .chunks_exact(8)
+                .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+                .collect();
+            table
+                .with_exact(ExactValues { scale, raw })
+                .map_err(in_file)
+        }
+        (Some(_), None) => Err(Error::invalid_file(
+            path,
+            "header field `exact` is set but there is no F64X section",
+        )),
+        (None, Some(_)) => Err(Error::invalid_file(
+            path,
+            "an F64X section is present but the header has no `exact` field",
+        )),
+    }
 }
 
 #[cfg(test)]

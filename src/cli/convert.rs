@@ -1,0 +1,116 @@
+//! `brdfpack convert`: a table (native, EXR, MERL) or a model to a table file in another
+//! format or on another grid.
+
+use super::common::{Lookup, OutputArgs, Source};
+use crate::grid::{Grid, parse_grid_spec};
+use crate::io::merl::merl_dims;
+use crate::io::{FormatName, OutputFormat, atomic, encode_table};
+use crate::table::{Interp, InterpolatedTable, Table};
+use crate::tabulate::{TabulateOptions, tabulate};
+use clap::Args;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct ConvertArgs {
+    /// Input: a table file (.bpk, brdfpack .exr, MERL .binary; `-` = stdin), an RGL .bsdf
+    /// measured file, or a model spec (e.g. `lambert:albedo=0.8/0.5/0.2`).
+    pub input: String,
+    /// Output file (`-` = stdout: native format unless --format says otherwise).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Target grid (`merl` or KIND:DIMS[,...]). Default: the input table's grid; `merl` for
+    /// MERL output and for model inputs.
+    #[arg(long)]
+    pub grid: Option<String>,
+    /// Interpolation used when a table is re-gridded.
+    #[arg(long, value_enum, default_value_t = Interp::Linear)]
+    pub interp: Interp,
+    #[command(flatten)]
+    pub out: OutputArgs,
+    /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0); recorded in the file.
+    #[arg(long)]
+    pub allow_anisotropic: bool,
+    /// Say on stderr how the output was made (re-gridding, notes, size).
+    #[arg(short, long)]
+    pub verbose: bool,
+}
+
+/// What the input turned out to be.
+pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
+    let input = Source::open(&a.input)?;
+    let grid = match (&a.grid, &input) {
+        (Some(s), _) => parse_grid_spec(s)?,
+        (None, Source::Table(t))
+            if a.out.format.or_else(|| FormatName::from_path(&a.output))
+                != Some(FormatName::Merl)
+                || merl_dims(t.grid()).is_some() =>
+        {
+            t.grid().clone()
+        }
+        (None, _) => Grid::merl(),
+    };
+    let output = a.out.resolve(&a.output, &grid)?;
+    let opts = TabulateOptions {
+        allow_anisotropic: a.allow_anisotropic,
+        progress: std::io::stderr().is_terminal(),
+    };
+    let table = match input {
+        Source::Table(t) if *t.grid() == grid => t,
+        Source::Table(t) => regrid(t, &grid, a.interp, &opts)?,
+        other => tabulate(other.into_brdf(Lookup::Linear)?.as_ref(), &grid, &opts)?,
+    };
+    let bytes = encode_table(&table, &output)?;
+    atomic::write_output(&a.output, &bytes)?;
+    if a.verbose {
+        let exact_kept = table.exact().is_some()
+            && match &output {
+                OutputFormat::Exr(o) => o.is_lossless(),
+                OutputFormat::Native(_) | OutputFormat::Merl => true,
+            };
+        for note in &table.provenance().notes {
+            eprintln!("brdfpack: note: {note}");
+        }
+        eprintln!(
+            "brdfpack: wrote {} ({:?}, {} bytes, grid {}{})",
+            a.output.display(),
+            output.name(),
+            bytes.len(),
+            grid.describe(),
+            if exact_kept {
+                ", exact f64 values kept"
+            } else {
+                ""
+            }
+        );
+    }
+    Ok(0)
+}
+
+/// Samples a table on another grid by interpolation, keeping its source and notes and adding
+/// one that says how.
+pub fn regrid(
+    t: Table,
+    grid: &Grid,
+    interp: Interp,
+    opts: &TabulateOptions,
+) -> crate::Result<Table> {
+    let from = t.grid().describe();
+    let mut provenance = t.provenance().clone();
+    let it = InterpolatedTable { table: t, interp };
+    let mut out = tabulate(&it, grid, opts)?;
+    provenance
+        .notes
+        .extend(out.provenance().notes.iter().cloned());
+    provenance.notes.push(format!(
+        "re-gridded from {from} to {} by {} interpolation",
+        grid.describe(),
+        match interp {
+            Interp::Linear => "multilinear",
+            Interp::Nearest => "nearest-sample",
+        }
+    ));
+    provenance.tool = out.provenance().tool.clone();
+    *out.provenance_mut() = provenance;
+    Ok(out)
+}

@@ -1,0 +1,164 @@
+//! `brdfpack inspect`: what a table file holds — format, grid, channels, provenance and value
+//! statistics over the valid cells.
+
+use crate::io::{Format, atomic, decode_table, detect};
+use crate::table::Table;
+use clap::Args;
+use serde::Serialize;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct InspectArgs {
+    /// A table file: native .bpk, brdfpack .exr or MERL .binary (`-` = stdin).
+    pub file: PathBuf,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Statistics of one channel over the valid cells.
+#[derive(Serialize, Debug, Clone, PartialEq)]
+pub struct ChannelStats {
+    pub name: String,
+    pub min: f64,
+    pub max: f64,
+    pub mean: f64,
+    /// Valid cells whose value is negative (fitted data can hold small negatives).
+    pub negative: usize,
+}
+
+/// The report `inspect` prints.
+#[derive(Serialize, Debug)]
+pub struct Report {
+    pub file: String,
+    pub format: &'static str,
+    pub bytes: usize,
+    pub grid: String,
+    pub grid_desc: crate::grid::GridDesc,
+    pub channels: Vec<String>,
+    pub source: String,
+    pub tool: String,
+    pub notes: Vec<String>,
+    pub cells: usize,
+    pub valid_cells: usize,
+    pub invalid_cells: usize,
+    /// Negative values over all channels of the valid cells.
+    pub negative_values: usize,
+    /// True when the table carries its source's exact f64 values (e.g. from MERL).
+    pub exact_f64: bool,
+    pub stats: Vec<ChannelStats>,
+}
+
+/// Per-channel min/max/mean (f64 sums) and negative counts over valid cells; all zero when
+/// no cell is valid.
+pub fn channel_stats(t: &Table) -> Vec<ChannelStats> {
+    let nch = t.channels().len();
+    let mut s: Vec<ChannelStats> = t
+        .channels()
+        .names()
+        .iter()
+        .map(|n| ChannelStats {
+            name: n.clone(),
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+            mean: 0.0,
+            negative: 0,
+        })
+        .collect();
+    let mut count = 0usize;
+    for (cell, &ok) in t.valid().iter().enumerate() {
+        if !ok {
+            continue;
+        }
+        count += 1;
+        for (k, &v) in t.cell(cell).iter().enumerate() {
+            let v = v as f64;
+            s[k].min = s[k].min.min(v);
+            s[k].max = s[k].max.max(v);
+            s[k].mean += v;
+            if v < 0.0 {
+                s[k].negative += 1;
+            }
+        }
+    }
+    for c in s.iter_mut().take(nch) {
+        if count == 0 {
+            // No valid cell: report zeros rather than ±Inf (never printed as non-finite).
+            c.min = 0.0;
+            c.max = 0.0;
+        } else {
+            c.mean /= count as f64;
+        }
+    }
+    s
+}
+
+pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
+    let bytes = atomic::read_input(&a.file)?;
+    let format = detect(&bytes, &a.file);
+    if format == Format::Rgl {
+        // Not a table: say what it is and stop (the RGL reader describes its fields).
+        if a.json {
+            println!(
+                "{}",
+                serde_json::json!({"file": a.file.display().to_string(), "format": "rgl",
+                    "bytes": bytes.len(), "table": false})
+            );
+        } else {
+            println!("file: {}", a.file.display());
+            println!(
+                "format: rgl ({} bytes; a measured BRDF, not a table)",
+                bytes.len()
+            );
+        }
+        return Ok(0);
+    }
+    let t = decode_table(&bytes, &a.file)?;
+    let stats = channel_stats(&t);
+    let r = Report {
+        file: a.file.display().to_string(),
+        format: format.name(),
+        bytes: bytes.len(),
+        grid: t.grid().describe(),
+        grid_desc: t.grid().desc(),
+        channels: t.channels().names().to_vec(),
+        source: t.provenance().source.clone(),
+        tool: t.provenance().tool.clone(),
+        notes: t.provenance().notes.clone(),
+        cells: t.grid().cells(),
+        valid_cells: t.valid_count(),
+        invalid_cells: t.grid().cells() - t.valid_count(),
+        negative_values: stats.iter().map(|s| s.negative).sum(),
+        exact_f64: t.exact().is_some(),
+        stats,
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+        return Ok(0);
+    }
+    println!("file: {}", r.file);
+    println!("format: {} ({} bytes)", r.format, r.bytes);
+    println!("grid: {}", r.grid);
+    println!("channels: {}", r.channels.join(" "));
+    println!("source: {}", r.source);
+    println!("tool: {}", r.tool);
+    for n in &r.notes {
+        println!("note: {n}");
+    }
+    println!(
+        "cells: {} (valid {}, invalid {})",
+        r.cells, r.valid_cells, r.invalid_cells
+    );
+    println!("negative values in valid cells: {}", r.negative_values);
+    println!(
+        "exact f64 values: {}",
+        if r.exact_f64 { "yes" } else { "no" }
+    );
+    for s in &r.stats {
+        println!(
+            "channel {}: min {:.6e} max {:.6e} mean {:.6e} (1/sr)",
+            s.name, s.min, s.max, s.mean
+        );
+    }
+    Ok(0)
+}
