@@ -134,7 +134,8 @@ pub fn require_rgb(channels: &Channels, what: &str) -> Result<()> {
         return Ok(());
     }
     let hint = if is_spectral(channels) {
-        "; convert it first (`--to-rgb`, or `brdfpack::spectral::spectral_to_rgb`)"
+        "; convert it to RGB first (`--to-rgb` of tabulate and convert, or \
+         `brdfpack::spectral::spectral_to_rgb`)"
     } else {
         ""
     };

@@ -484,10 +484,10 @@ fn rgb_conversion_matches_independent_python_computation() {
     }
 }
 
-/// Done-criterion 4 (the parts that exist on this branch): a 16-wavelength spectral table
-/// goes through tabulate → native file → read back with its channel names and wavelengths,
-/// and its RGB conversion matches the Python reference for every cell. (Compression codecs
-/// and EXR are on other branches.)
+/// Done-criterion 4: a 16-wavelength spectral table goes through tabulate → native file
+/// (lossless zstd) and EXR → read back with its channel names and wavelengths, and its RGB
+/// conversion matches the Python reference for every cell. (The lossy codecs are on
+/// another branch.)
 #[test]
 fn spectral_table_round_trips_through_the_native_format_and_converts_to_rgb() {
     let r = reference();
@@ -554,6 +554,21 @@ fn spectral_table_round_trips_through_the_native_format_and_converts_to_rgb() {
     let back = native::from_bytes(&bytes, Path::new("htsg.bpk")).unwrap();
     assert_eq!(back.channels(), m.channels());
     assert_eq!(back.provenance(), table.provenance());
+    // And through EXR (lossless f32): the same channels, wavelengths and values; the EXR
+    // channel names are the wavelength labels.
+    let exr_opts = brdfpack::io::exr::ExrOptions::default();
+    assert!(exr_opts.is_lossless());
+    let exr = brdfpack::io::exr::to_bytes(&table, &exr_opts).unwrap();
+    let from_exr = brdfpack::io::decode_table(&exr, Path::new("htsg.exr")).unwrap();
+    assert_eq!(from_exr.channels(), m.channels());
+    assert_eq!(from_exr.data(), table.data());
+    for name in m.channels().names() {
+        let needle = name.as_bytes();
+        assert!(
+            exr.windows(needle.len()).any(|w| w == needle),
+            "EXR lacks a channel named {name}"
+        );
+    }
     let rgb = spectral_to_rgb(&back).unwrap();
     let conv = SpectrumToRgb::new(&r.wavelengths).unwrap();
     for cell in (0..back.valid().len()).filter(|&c| back.valid()[c]) {
@@ -627,4 +642,69 @@ fn cli_tabulate_to_rgb_writes_rgb_channels() {
         .assert()
         .code(2)
         .stderr(predicates::str::contains("not spectral"));
+}
+
+#[test]
+fn props_reports_htsg_terms_and_the_specular_delta_apart() {
+    use assert_cmd::Command;
+    let out = Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args(["props", "htsg:sigma0=0.05", "--json", "--samples", "64"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let m = Model::parse("htsg:sigma0=0.05").unwrap();
+    assert_eq!(
+        v["htsg_terms"].as_u64(),
+        Some(m.series_terms_max().unwrap() as u64)
+    );
+    let rows = v["specular"].as_array().unwrap();
+    assert_eq!(rows.len(), v["albedo"].as_array().unwrap().len());
+    let row0 = &rows[0];
+    assert_eq!(row0["theta_i_deg"], 0.0);
+    let want = m.specular_coefficient(Vec3::Z).unwrap();
+    for c in 0..3 {
+        assert_eq!(row0["coefficient"][c].as_f64(), Some(want[c]));
+    }
+    // Smooth dielectric: specular + directional-diffuse albedo ≈ F(0) = 0.04 at normal
+    // incidence (the Kirchhoff model splits the Fresnel reflectance between the two parts;
+    // a loose check that the two reports are the two halves of one whole).
+    let albedo0 = v["albedo"][0]["albedo"][1].as_f64().unwrap();
+    let total = albedo0 + want[1];
+    assert!(
+        (total - 0.04).abs() < 2e-3,
+        "{albedo0} + {} = {total}",
+        want[1]
+    );
+    // Closed-form models have neither field.
+    let out = Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args(["props", "lambert", "--json", "--samples", "16"])
+        .output()
+        .unwrap();
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v.get("htsg_terms").is_none() && v.get("specular").is_none());
+}
+
+#[test]
+fn merl_output_refuses_spectral_tables_until_converted() {
+    let m = Model::parse("lambert:albedo=0.2/0.4/0.6,wavelengths_nm=450/550/650").unwrap();
+    let t = tabulate(
+        &m,
+        &brdfpack::grid::Grid::merl(),
+        &TabulateOptions::default(),
+    )
+    .unwrap();
+    // Three channels, but spectral ones: not R, G, B.
+    let e = brdfpack::io::merl::to_bytes(&t).unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    assert!(e.to_string().contains("--to-rgb"), "{e}");
+    let rgb = spectral_to_rgb(&t).unwrap();
+    let bytes = brdfpack::io::merl::to_bytes(&rgb).unwrap();
+    assert!(bytes.len() > 3 * 1_000_000 * 8);
 }

@@ -31,6 +31,10 @@ pub struct ConvertArgs {
     /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0); recorded in the file.
     #[arg(long)]
     pub allow_anisotropic: bool,
+    /// Convert spectral channels to linear sRGB (CIE 1931 2°, D65; docs/spectral.md), e.g.
+    /// before writing MERL. An error when the input is not spectral.
+    #[arg(long)]
+    pub to_rgb: bool,
     /// Say on stderr how the output was made (re-gridding, notes, size).
     #[arg(short, long)]
     pub verbose: bool,
@@ -59,6 +63,11 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
         Source::Table(t) if *t.grid() == grid => t,
         Source::Table(t) => regrid(t, &grid, a.interp, &opts)?,
         other => tabulate(other.into_brdf(Lookup::Linear)?.as_ref(), &grid, &opts)?,
+    };
+    let table = if a.to_rgb {
+        crate::spectral::spectral_to_rgb(&table)?
+    } else {
+        table
     };
     let bytes = encode_table(&table, &output)?;
     atomic::write_output(&a.output, &bytes)?;

@@ -301,46 +301,6 @@ impl Model {
         }
     }
 
-    /// The coefficient of the Dirac-delta (specular) part per channel for light arriving
-    /// from `wi`, when the model has one: ρ for a `mirror`, ρ_s(wi) for `htsg`, summed over
-    /// the terms of a sum. This part is never in f_r or in a table; reports show it apart.
-    pub fn specular_coefficient(&self, wi: Vec3) -> Option<Vec<f64>> {
-        match self {
-            Model::Mirror(m) => Some(if wi.z > 0.0 {
-                m.albedo.clone()
-            } else {
-                vec![0.0; m.albedo.len()]
-            }),
-            Model::Htsg(m) => Some(m.specular_coefficient(wi)),
-            Model::Sum(s) => {
-                let c = s.channels.len();
-                let mut total: Option<Vec<f64>> = None;
-                for t in &s.terms {
-                    if let Some(a) = t.specular_coefficient(wi) {
-                        let acc = total.get_or_insert_with(|| vec![0.0; c]);
-                        for (ch, v) in acc.iter_mut().enumerate() {
-                            // A single-channel term applies to every channel.
-                            *v += if a.len() == 1 { a[0] } else { a[ch] };
-                        }
-                    }
-                }
-                total
-            }
-            _ => None,
-        }
-    }
-
-    /// For models evaluated by a series (`htsg`, also inside a sum): the largest number of
-    /// series terms any channel sums over the fixed direction set of
-    /// [`Htsg::series_terms_max`]; None for closed-form models.
-    pub fn series_terms_max(&self) -> Option<usize> {
-        match self {
-            Model::Htsg(m) => Some(m.series_terms_max()),
-            Model::Sum(s) => s.terms.iter().filter_map(Model::series_terms_max).max(),
-            _ => None,
-        }
-    }
-
     /// The built-in material `pack` uses when no model is given: GGX α = 0.2,
     /// height-correlated Smith, conductor Fresnel of gold (`au`).
     pub fn default_material() -> Model {
@@ -424,6 +384,46 @@ impl Brdf for Model {
 
     fn describe(&self) -> String {
         self.to_json().to_string()
+    }
+
+    /// The coefficient of the Dirac-delta (specular) part per channel for light arriving
+    /// from `wi`, when the model has one: ρ for a `mirror`, ρ_s(wi) for `htsg`, summed over
+    /// the terms of a sum. This part is never in f_r or in a table; reports show it apart.
+    fn specular_coefficient(&self, wi: Vec3) -> Option<Vec<f64>> {
+        match self {
+            Model::Mirror(m) => Some(if wi.z > 0.0 {
+                m.albedo.clone()
+            } else {
+                vec![0.0; m.albedo.len()]
+            }),
+            Model::Htsg(m) => Some(m.specular_coefficient(wi)),
+            Model::Sum(s) => {
+                let c = s.channels.len();
+                let mut total: Option<Vec<f64>> = None;
+                for t in &s.terms {
+                    if let Some(a) = t.specular_coefficient(wi) {
+                        let acc = total.get_or_insert_with(|| vec![0.0; c]);
+                        for (ch, v) in acc.iter_mut().enumerate() {
+                            // A single-channel term applies to every channel.
+                            *v += if a.len() == 1 { a[0] } else { a[ch] };
+                        }
+                    }
+                }
+                total
+            }
+            _ => None,
+        }
+    }
+
+    /// For models evaluated by a series (`htsg`, also inside a sum): the largest number of
+    /// series terms any channel sums over the fixed direction set of
+    /// [`Htsg::series_terms_max`]; None for closed-form models.
+    fn series_terms_max(&self) -> Option<usize> {
+        match self {
+            Model::Htsg(m) => Some(m.series_terms_max()),
+            Model::Sum(s) => s.terms.iter().filter_map(Model::series_terms_max).max(),
+            _ => None,
+        }
     }
 
     fn provenance_notes(&self) -> Vec<String> {
