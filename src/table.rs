@@ -369,7 +369,9 @@ impl Brdf for InterpolatedTable {
         self.table.grid().kind().is_isotropic()
     }
     fn is_reciprocal(&self) -> bool {
-        false
+        // A folded half/difference table is reciprocal by construction; other grids store
+        // whatever their source was, which the table does not promise.
+        self.table.grid().kind() == crate::grid::GridKind::Halfdiff3
     }
     fn describe(&self) -> String {
         format!(

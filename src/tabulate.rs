@@ -13,6 +13,9 @@ pub struct TabulateOptions {
     /// Allow an anisotropic source on an isotropic grid (φh is then fixed at 0; stated in the
     /// table's provenance).
     pub allow_anisotropic: bool,
+    /// Allow a source that is not reciprocal on `halfdiff3`, whose φd fold assumes
+    /// f(wi, wo) = f(wo, wi) (stated in the table's provenance).
+    pub allow_nonreciprocal: bool,
     /// Show a progress bar (callers pass true only when stderr is a terminal).
     pub progress: bool,
 }
@@ -38,6 +41,20 @@ pub fn tabulate(src: &dyn Brdf, grid: &Grid, opts: &TabulateOptions) -> Result<T
             "anisotropic source sampled on isotropic grid {} (at φh = 0 / φi = 0)",
             grid.kind().name()
         ));
+    }
+    if grid.kind() == crate::grid::GridKind::Halfdiff3 && !src.is_reciprocal() {
+        if !opts.allow_nonreciprocal {
+            return Err(Error::input(format!(
+                "{} is not reciprocal but grid halfdiff3 folds φd by reciprocity (f(wi, wo) = \
+                 f(wo, wi)); use spherical3 (isotropic, no reciprocity fold) or halfdiff4, or \
+                 pass --allow-nonreciprocal to store the value at φd mod π",
+                src.describe()
+            )));
+        }
+        notes.push(
+            "source is not reciprocal; halfdiff3 stores it at φd mod π (the other half is lost)"
+                .to_string(),
+        );
     }
     notes.extend(src.provenance_notes());
     let c = src.channels().len();
@@ -211,10 +228,57 @@ mod tests {
             &g,
             &TabulateOptions {
                 allow_anisotropic: true,
-                progress: false,
+                ..Default::default()
             },
         )
         .unwrap();
         assert_eq!(t.provenance().notes.len(), 1);
+    }
+
+    /// Reciprocal in nothing: f depends on wi only through wi.z and on wo through wo.x.
+    struct OneWay(Channels);
+    impl Brdf for OneWay {
+        fn channels(&self) -> &Channels {
+            &self.0
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
+            out[0] = if wi.z > 0.0 && wo.z > 0.0 {
+                1.0 + wi.z * 0.5
+            } else {
+                0.0
+            };
+        }
+        fn is_isotropic(&self) -> bool {
+            true
+        }
+        fn is_reciprocal(&self) -> bool {
+            false
+        }
+        fn describe(&self) -> String {
+            "one-way".into()
+        }
+    }
+
+    #[test]
+    fn reciprocity_fold_refuses_a_non_reciprocal_source() {
+        let src = OneWay(Channels::default_for(1));
+        let g = parse_grid_spec("halfdiff3:8").unwrap();
+        let e = tabulate(&src, &g, &TabulateOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("not reciprocal"), "{e}");
+        // No fold on spherical3 or halfdiff4: accepted.
+        for spec in ["spherical3:8", "halfdiff4:6"] {
+            tabulate(
+                &src,
+                &parse_grid_spec(spec).unwrap(),
+                &TabulateOptions::default(),
+            )
+            .unwrap();
+        }
+        let opts = TabulateOptions {
+            allow_nonreciprocal: true,
+            ..Default::default()
+        };
+        let t = tabulate(&src, &g, &opts).unwrap();
+        assert!(t.provenance().notes[0].contains("not reciprocal"));
     }
 }

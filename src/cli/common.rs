@@ -77,3 +77,26 @@ pub fn write_table(table: &Table, path: &Path, format: &OutputFormat) -> Result<
 pub fn stderr_is_terminal() -> bool {
     std::io::stderr().is_terminal()
 }
+
+/// Overrides for sampling a source on a grid whose symmetry it lacks.
+#[derive(Args, Debug, Clone, Default)]
+pub struct SymmetryArgs {
+    /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0 / φi = 0);
+    /// recorded in the file.
+    #[arg(long)]
+    pub allow_anisotropic: bool,
+    /// Sample a non-reciprocal source (e.g. RGL measurements) on halfdiff3 anyway, whose φd
+    /// fold assumes reciprocity; recorded in the file.
+    #[arg(long)]
+    pub allow_nonreciprocal: bool,
+}
+
+impl SymmetryArgs {
+    pub fn options(&self, progress: bool) -> crate::tabulate::TabulateOptions {
+        crate::tabulate::TabulateOptions {
+            allow_anisotropic: self.allow_anisotropic,
+            allow_nonreciprocal: self.allow_nonreciprocal,
+            progress,
+        }
+    }
+}

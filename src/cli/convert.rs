@@ -1,7 +1,7 @@
 //! `brdfpack convert`: a table (native, EXR, MERL) or a model to a table file in another
 //! format or on another grid.
 
-use super::common::{Lookup, OutputArgs, Source};
+use super::common::{Lookup, OutputArgs, Source, SymmetryArgs};
 use crate::grid::{Grid, parse_grid_spec};
 use crate::io::merl::merl_dims;
 use crate::io::{FormatName, OutputFormat, atomic, encode_table};
@@ -28,9 +28,8 @@ pub struct ConvertArgs {
     pub interp: Interp,
     #[command(flatten)]
     pub out: OutputArgs,
-    /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0); recorded in the file.
-    #[arg(long)]
-    pub allow_anisotropic: bool,
+    #[command(flatten)]
+    pub symmetry: SymmetryArgs,
     /// Convert spectral channels to linear sRGB (CIE 1931 2°, D65; docs/spectral.md), e.g.
     /// before writing MERL. An error when the input is not spectral.
     #[arg(long)]
@@ -55,10 +54,7 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
         (None, _) => Grid::merl(),
     };
     let output = a.out.resolve(&a.output, &grid)?;
-    let opts = TabulateOptions {
-        allow_anisotropic: a.allow_anisotropic,
-        progress: std::io::stderr().is_terminal(),
-    };
+    let opts = a.symmetry.options(std::io::stderr().is_terminal());
     let table = match input {
         Source::Table(t) if *t.grid() == grid => t,
         Source::Table(t) => regrid(t, &grid, a.interp, &opts)?,

@@ -2,14 +2,14 @@
 //! check against the source, and report sizes, times and errors.
 
 use super::check::{Bounds, verdict};
-use super::common::{Lookup, Source, stderr_is_terminal};
+use super::common::{Lookup, Source, SymmetryArgs, stderr_is_terminal};
 use crate::check::{CheckOptions, check, fmt_num};
 use crate::codec::CodecSpec;
 use crate::grid::parse_grid_spec;
 use crate::io::{atomic, native};
 use crate::model::Model;
 use crate::table::{Interp, InterpolatedTable};
-use crate::tabulate::{TabulateOptions, tabulate};
+use crate::tabulate::tabulate;
 use clap::Args;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -22,18 +22,19 @@ pub struct PackArgs {
     /// Output file (`-` for stdout; the report then goes to stderr).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Grid spec (see `tabulate --help`).
-    #[arg(long, default_value = "merl")]
-    pub grid: String,
+    /// Grid spec (see `tabulate --help`). Default: `merl` for isotropic reciprocal sources,
+    /// `spherical3:90x90x180` for isotropic non-reciprocal ones (measured data),
+    /// `halfdiff4:64` for anisotropic ones.
+    #[arg(long)]
+    pub grid: Option<String>,
     /// Pairs in the uniform check set.
     #[arg(long, default_value_t = 65_536)]
     pub samples: usize,
     /// Seed of the check's sample sets.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Sample an anisotropic source on an isotropic grid anyway.
-    #[arg(long)]
-    pub allow_anisotropic: bool,
+    #[command(flatten)]
+    pub symmetry: SymmetryArgs,
     /// One JSON object instead of report lines.
     #[arg(long)]
     pub json: bool,
@@ -65,20 +66,20 @@ struct PackReport {
 
 pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     a.bounds.validate()?;
-    let grid = parse_grid_spec(&a.grid)?;
     let source = match &a.source {
         Some(s) => Source::open(s)?,
         None => Source::Model(Model::default_material()),
     };
     let src = source.into_brdf(Lookup::Linear)?;
+    let grid = match &a.grid {
+        Some(g) => parse_grid_spec(g)?,
+        None => default_grid(src.as_ref()),
+    };
     let t0 = Instant::now();
     let table = tabulate(
         src.as_ref(),
         &grid,
-        &TabulateOptions {
-            allow_anisotropic: a.allow_anisotropic,
-            progress: stderr_is_terminal() && !a.quiet,
-        },
+        &a.symmetry.options(stderr_is_terminal() && !a.quiet),
     )?;
     let tabulate_s = t0.elapsed().as_secs_f64();
     let codec = CodecSpec::default();
@@ -140,6 +141,18 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         eprintln!("brdfpack: bounds exceeded: {}", failed.join("; "));
     }
     Ok(if failed.is_empty() { 0 } else { 1 })
+}
+
+/// A grid that respects the source's symmetries at about MERL's resolution.
+fn default_grid(src: &dyn crate::brdf::Brdf) -> crate::grid::Grid {
+    let spec = if !src.is_isotropic() {
+        "halfdiff4:64"
+    } else if !src.is_reciprocal() {
+        "spherical3:90x90x180"
+    } else {
+        "merl"
+    };
+    parse_grid_spec(spec).expect("built-in grid specs parse")
 }
 
 fn human(r: &PackReport) -> String {

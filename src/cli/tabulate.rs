@@ -1,8 +1,8 @@
 //! `brdfpack tabulate`: sample a source onto a grid and write the table.
 
-use super::common::{Lookup, OutputArgs, Source, stderr_is_terminal, write_table};
+use super::common::{Lookup, OutputArgs, Source, SymmetryArgs, stderr_is_terminal, write_table};
 use crate::grid::parse_grid_spec;
-use crate::tabulate::{TabulateOptions, tabulate};
+use crate::tabulate::tabulate;
 use clap::Args;
 use std::path::PathBuf;
 
@@ -20,9 +20,8 @@ pub struct TabulateArgs {
     /// Interpolation when the source is a table.
     #[arg(long, value_enum, default_value_t = Lookup::Linear)]
     pub interp: Lookup,
-    /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0); recorded in the file.
-    #[arg(long)]
-    pub allow_anisotropic: bool,
+    #[command(flatten)]
+    pub symmetry: SymmetryArgs,
     /// Convert spectral channels to linear sRGB before writing (CIE 1931 2°, D65; see
     /// docs/spectral.md). An error when the source is not spectral.
     #[arg(long)]
@@ -42,10 +41,7 @@ pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
     let table = tabulate(
         src.as_ref(),
         &grid,
-        &TabulateOptions {
-            allow_anisotropic: a.allow_anisotropic,
-            progress: stderr_is_terminal(),
-        },
+        &a.symmetry.options(stderr_is_terminal()),
     )?;
     let table = if a.to_rgb {
         crate::spectral::spectral_to_rgb(&table)?
