@@ -98,4 +98,22 @@ pub trait Brdf: Send + Sync {
 
     /// A one-line description of the source for provenance and reports.
     fn describe(&self) -> String;
+
+    /// Notes that a table of this source must carry in its provenance: what the source has
+    /// that a table cannot hold (e.g. HTSG's specular delta). None by default.
+    fn provenance_notes(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    /// The coefficient per channel of a Dirac-delta (specular) part for light from `wi`, which
+    /// `eval` and tables never include (e.g. HTSG's ρ_s(wi)); None when there is none.
+    fn specular_coefficient(&self, _wi: Vec3) -> Option<Vec<f64>> {
+        None
+    }
+
+    /// For sources evaluated by a series (HTSG): the largest number of series terms summed
+    /// over a fixed set of direction pairs; None otherwise.
+    fn series_terms_max(&self) -> Option<usize> {
+        None
+    }
 }

@@ -17,6 +17,7 @@ pub mod math;
 pub mod model;
 pub mod props;
 pub mod source;
+pub mod spectral;
 pub mod table;
 pub mod tabulate;
 

@@ -460,6 +460,16 @@ pub struct Energy {
     pub conserves: bool,
 }
 
+/// The coefficient of a source's Dirac-delta (specular) part at one incidence: the energy
+/// that leaves in the mirror direction, which `albedo` (an integral of pointwise values)
+/// does not contain.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SpecularRow {
+    pub theta_i_deg: f64,
+    pub phi_i_deg: f64,
+    pub coefficient: Vec<f64>,
+}
+
 /// Everything [`props`] measures.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct PropsReport {
@@ -476,6 +486,14 @@ pub struct PropsReport {
     /// The properties that fail, one sentence each (empty: all pass): non-finite or negative
     /// values, a promised symmetry that does not hold, energy not conserved.
     pub failures: Vec<String>,
+    /// For sources with a Dirac-delta part (HTSG's specular term): its coefficient at the
+    /// albedo rows' incidences, reported apart from (and not included in) `albedo`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub specular: Option<Vec<SpecularRow>>,
+    /// For HTSG (also inside a sum): the largest number of series terms any channel sums
+    /// over the fixed direction set of `Htsg::series_terms_max`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub htsg_terms: Option<usize>,
 }
 
 impl PropsReport {
@@ -698,7 +716,21 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
     }
     energy.conserves = energy.max_albedo <= 1.0 + energy.tolerance;
 
+    let specular = angles
+        .iter()
+        .map(|&(t, p)| {
+            let wi = Vec3::from_spherical(t.to_radians(), p.to_radians());
+            brdf.specular_coefficient(wi)
+                .map(|coefficient| SpecularRow {
+                    theta_i_deg: t,
+                    phi_i_deg: p,
+                    coefficient,
+                })
+        })
+        .collect::<Option<Vec<_>>>();
     let mut report = PropsReport {
+        specular,
+        htsg_terms: brdf.series_terms_max(),
         source: brdf.describe(),
         channels: brdf.channels().names().to_vec(),
         seed: options.seed,

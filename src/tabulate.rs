@@ -56,6 +56,7 @@ pub fn tabulate(src: &dyn Brdf, grid: &Grid, opts: &TabulateOptions) -> Result<T
                 .to_string(),
         );
     }
+    notes.extend(src.provenance_notes());
     let c = src.channels().len();
     let cells = grid.cells();
     let d = grid.axes().len();

@@ -30,6 +30,10 @@ pub struct ConvertArgs {
     pub out: OutputArgs,
     #[command(flatten)]
     pub symmetry: SymmetryArgs,
+    /// Convert spectral channels to linear sRGB (CIE 1931 2°, D65; docs/spectral.md), e.g.
+    /// before writing MERL. An error when the input is not spectral.
+    #[arg(long)]
+    pub to_rgb: bool,
     /// Say on stderr how the output was made (re-gridding, notes, size).
     #[arg(short, long)]
     pub verbose: bool,
@@ -55,6 +59,11 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
         Source::Table(t) if *t.grid() == grid => t,
         Source::Table(t) => regrid(t, &grid, a.interp, &opts)?,
         other => tabulate(other.into_brdf(Lookup::Linear)?.as_ref(), &grid, &opts)?,
+    };
+    let table = if a.to_rgb {
+        crate::spectral::spectral_to_rgb(&table)?
+    } else {
+        table
     };
     let output = output.for_table(&table)?;
     let bytes = encode_table(&table, &output)?;

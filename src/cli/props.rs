@@ -113,6 +113,12 @@ fn write_table<W: Write>(out: &mut W, r: &PropsReport) -> std::io::Result<()> {
             "EXCEEDS 1"
         }
     )?;
+    if let Some(n) = r.htsg_terms {
+        writeln!(
+            out,
+            "htsg terms   {n} (most series terms any channel sums, over a fixed direction set)"
+        )?;
+    }
     writeln!(out)?;
     // Albedo table: one column per channel, then the largest error estimate of the row.
     let mut header = format!("{:>8} {:>6}", "θi(°)", "φi(°)");
@@ -129,6 +135,18 @@ fn write_table<W: Write>(out: &mut W, r: &PropsReport) -> std::io::Result<()> {
         let err = row.error.iter().copied().fold(0.0, f64::max);
         line.push_str(&format!(" {err:>9.1e} {:>8}", row.evaluations));
         writeln!(out, "{line}")?;
+    }
+    if let Some(rows) = &r.specular {
+        // The delta part, not in the albedo above: the coefficient per channel.
+        writeln!(out)?;
+        writeln!(out, "specular delta (not in the albedo above): coefficient")?;
+        for row in rows {
+            let mut line = format!("{:>8.2} {:>6.0}", row.theta_i_deg, row.phi_i_deg);
+            for a in &row.coefficient {
+                line.push_str(&format!(" {a:>10.3e}"));
+            }
+            writeln!(out, "{line}")?;
+        }
     }
     writeln!(out)?;
     if r.failures.is_empty() {

@@ -22,6 +22,10 @@ pub struct TabulateArgs {
     pub interp: Lookup,
     #[command(flatten)]
     pub symmetry: SymmetryArgs,
+    /// Convert spectral channels to linear sRGB before writing (CIE 1931 2°, D65; see
+    /// docs/spectral.md). An error when the source is not spectral.
+    #[arg(long)]
+    pub to_rgb: bool,
     #[command(flatten)]
     pub out: OutputArgs,
     /// Print one line of statistics on stderr.
@@ -39,6 +43,11 @@ pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
         &grid,
         &a.symmetry.options(stderr_is_terminal()),
     )?;
+    let table = if a.to_rgb {
+        crate::spectral::spectral_to_rgb(&table)?
+    } else {
+        table
+    };
     let dt = t0.elapsed();
     for note in &table.provenance().notes {
         eprintln!("brdfpack: note: {note}");

@@ -183,6 +183,10 @@ impl MerlTable {
                 table.grid().describe()
             ))
         })?;
+        // A spectral table is not RGB even with 3 channels: refuse it, pointing to --to-rgb.
+        if crate::spectral::is_spectral(table.channels()) {
+            crate::spectral::require_rgb(table.channels(), "MERL .binary")?;
+        }
         if table.channels().len() != 3 {
             return Err(Error::input(format!(
                 "MERL .binary holds exactly 3 channels (red, green, blue); the table has {} ({})",

@@ -1,7 +1,7 @@
 //! Ashikhmin–Shirley anisotropic Phong BRDF (Ashikhmin & Shirley 2000; spec/models.md).
 
 use super::finite_large;
-use super::params::{ChannelCount, ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
+use super::params::{ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
 use crate::Result;
 use crate::brdf::Channels;
 use crate::geometry::Vec3;
@@ -33,6 +33,7 @@ pub const PARAMS: &[ParamDecl] = &[
         "Phong exponent along the bitangent y",
         "Ashikhmin & Shirley 2000",
     ),
+    super::params::WAVELENGTHS_NM,
 ];
 
 pub const DECL: ModelDecl = ModelDecl {
@@ -58,7 +59,7 @@ pub struct AshikhminShirley {
 
 impl AshikhminShirley {
     pub(crate) fn from_params(r: &ParamReader) -> Result<AshikhminShirley> {
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let rs = r.channel("rs", &mut cc)?;
         let rd = r.channel("rd", &mut cc)?;
         let c = cc.count();
@@ -67,7 +68,7 @@ impl AshikhminShirley {
             rd: broadcast(&rd, c),
             nu: r.number("nu")?,
             nv: r.number("nv")?,
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 

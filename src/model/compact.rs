@@ -7,7 +7,7 @@
 //! param := key '=' value
 //! value := number ( '/' number )*                  one number per channel, or a word
 //! lobe=cx:cy:cz:n[:albedo]                         lafortune, repeatable, fields as above
-//! fresnel=none|schlick|dielectric|conductor|au|cu|ag|al with f0= / ior= / eta=,k=
+//! fresnel=none|schlick|dielectric|conductor|au|cu|ag|al with f0= / ior= / eta=,k= / nk=@file
 //! ```
 
 use super::fresnel::METALS;
@@ -22,6 +22,7 @@ const FRESNEL_FIELDS: &[(&str, &str)] = &[
     ("ior", "dielectric"),
     ("eta", "conductor"),
     ("k", "conductor"),
+    ("nk", "conductor"),
 ];
 
 /// Translates a compact spec into canonical JSON (not yet validated beyond syntax).
@@ -100,7 +101,8 @@ fn term_to_json(term: &str) -> Result<Value> {
         }
         if has_fresnel && (key == "fresnel" || FRESNEL_FIELDS.iter().any(|f| f.0 == key)) {
             let json_key = if key == "fresnel" { "type" } else { key };
-            let v = if key == "fresnel" {
+            // The type and a data-file name stay words; the other fields are numbers.
+            let v = if key == "fresnel" || key == "nk" {
                 Value::from(value)
             } else {
                 numbers(ctx, &format!("fresnel.{key}"), value)?

@@ -1,7 +1,10 @@
 //! Fresnel reflectance of `spec/models.md` ("Fresnel"), evaluated at c = wi·h.
 
-use super::params::{ChannelCount, ParamDecl, ParamReader, broadcast, channel_json};
+use super::params::{
+    ChannelCount, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast, channel_json,
+};
 use crate::math::{safe_sqrt, sqr};
+use crate::spectral::OpticalConstants;
 use crate::{Error, Result};
 use serde_json::{Map, Value, json};
 
@@ -77,8 +80,8 @@ pub const DIELECTRIC_PARAMS: &[ParamDecl] =
     )];
 pub const CONDUCTOR_PARAMS: &[ParamDecl] = &[
     ParamDecl::number("eta", 0.0, 1e6, 1.0)
-        .required()
         .per_channel()
+        .derived_default("required (or nk)")
         .doc(
             "η",
             "1",
@@ -86,14 +89,25 @@ pub const CONDUCTOR_PARAMS: &[ParamDecl] = &[
             "Born & Wolf §14.4",
         ),
     ParamDecl::number("k", 0.0, 1e6, 0.0)
-        .required()
         .per_channel()
+        .derived_default("required (or nk)")
         .doc(
             "k",
             "1",
             "imaginary part (extinction coefficient)",
             "Born & Wolf §14.4",
         ),
+    ParamDecl::structured(
+        "nk",
+        ParamKind::DataFile("CSV wavelength_nm,n,k"),
+        ParamDefault::Derived("none (eta, k)"),
+    )
+    .doc(
+        "n, k",
+        "",
+        "tabulated η(λ), k(λ) interpolated linearly at the model's wavelengths_nm (instead of eta, k)",
+        "docs/spectral.md",
+    ),
 ];
 
 /// The Fresnel types and their fields, for parsing and listing.
@@ -180,6 +194,14 @@ impl Fresnel {
             }
         };
         if let Some((metal, eta, k)) = METALS.iter().find(|m| m.0 == type_name) {
+            if let Some(w) = channels.wavelengths_nm() {
+                return Err(Error::input(format!(
+                    "{context}: {name} = {metal} is RGB data (3 values) but the channels are {} \
+                     spectral samples (wavelengths_nm); give spectral optical constants with \
+                     {name}=conductor,nk=@file.csv (docs/spectral.md)",
+                    w.len()
+                )));
+            }
             if let Some(extra) = obj.keys().find(|key| *key != "type") {
                 return Err(Error::input(format!(
                     "{context}: {name}.{extra} cannot be combined with the named metal {metal:?} \
@@ -207,11 +229,31 @@ impl Fresnel {
             "dielectric" => Fresnel::Dielectric {
                 ior: sub.number("ior")?,
             },
-            _ => {
-                let eta = sub.channel("eta", channels)?;
-                let k = sub.channel("k", channels)?;
-                Fresnel::Conductor { eta, k }
-            }
+            _ => match sub.file("nk")? {
+                None => {
+                    let eta = sub.channel("eta", channels)?;
+                    let k = sub.channel("k", channels)?;
+                    Fresnel::Conductor { eta, k }
+                }
+                Some(path) => {
+                    if let Some(key) = ["eta", "k"].into_iter().find(|k| sub.is_given(k)) {
+                        return Err(Error::input(format!(
+                            "{context}: {name}.{key} and {name}.nk are both given; \
+                             nk = @{path} supplies η and k"
+                        )));
+                    }
+                    let Some(w) = channels.wavelengths_nm() else {
+                        return Err(Error::input(format!(
+                            "{context}: {name}.nk = @{path} needs the model's wavelengths_nm \
+                             (the wavelengths at which to interpolate η and k)"
+                        )));
+                    };
+                    let (eta, k) = OpticalConstants::read_csv(std::path::Path::new(path))?
+                        .at(w)
+                        .map_err(|e| Error::input(format!("{context}: {name}.nk: {e}")))?;
+                    Fresnel::Conductor { eta, k }
+                }
+            },
         })
     }
 

@@ -10,9 +10,13 @@
 //! effective-roughness solver, the series summation and its error bound) are explained in
 //! `docs/htsg.md`.
 
+use super::params::{ModelDecl, ParamDecl, ParamKind, ParamReader, broadcast};
+use crate::brdf::Channels;
 use crate::geometry::Vec3;
 use crate::math::{FRAC_1_PI, PI, erfc, sqr};
+use crate::spectral::{OpticalConstants, nm_from_um};
 use crate::{Error, Result};
+use serde_json::{Value, json};
 
 /// Largest accepted rms height σ0 (µm). Rougher surfaces are outside the Kirchhoff model's
 /// use and need ~2·10⁵ series terms per channel at the shortest wavelength.
@@ -21,6 +25,9 @@ pub const SIGMA0_MAX_UM: f64 = 100.0;
 pub const TAU_MAX_UM: f64 = 1000.0;
 /// Accepted wavelengths (µm): ultraviolet to far infrared.
 pub const WAVELENGTH_RANGE_UM: (f64, f64) = (0.1, 100.0);
+/// The spec's default wavelengths (µm), standing for red, green and blue: a model with
+/// exactly these has R, G, B channels; any other wavelengths give spectral channels.
+pub const RGB_WAVELENGTHS_UM: [f64; 3] = [0.645, 0.526, 0.444];
 
 /// The parameters of `htsg` (spec/models.md), per-channel lists already broadcast to the
 /// same length C.
@@ -48,7 +55,7 @@ impl Default for HtsgParams {
             tau_um: 3.0,
             eta_re: vec![1.5; 3],
             eta_im: vec![0.0; 3],
-            wavelengths_um: vec![0.645, 0.526, 0.444],
+            wavelengths_um: RGB_WAVELENGTHS_UM.to_vec(),
             uniform_diffuse: vec![0.0; 3],
         }
     }
@@ -99,6 +106,13 @@ impl HtsgParams {
                     "htsg: wavelengths[{i}] = {w} µm is out of range; expected {lo} <= wavelength <= {hi} µm"
                 )));
             }
+            // Channels are named by wavelength, so two channels cannot share one.
+            if let Some(j) = self.wavelengths_um[..i].iter().position(|&v| v == w) {
+                return Err(Error::input(format!(
+                    "htsg: wavelengths[{i}] = {w} µm repeats wavelengths[{j}]; each channel \
+                     needs its own wavelength"
+                )));
+            }
         }
         for (i, &e) in self.eta_re.iter().enumerate() {
             if !(e > 0.0 && e.is_finite()) {
@@ -145,6 +159,8 @@ struct ChannelConsts {
 pub struct Htsg {
     params: HtsgParams,
     channels: Vec<ChannelConsts>,
+    /// R, G, B for the spec's default wavelengths, else spectral samples named by λ (nm).
+    pub(crate) names: Channels,
 }
 
 /// Evaluation statistics: the largest number of series terms any channel summed.
@@ -172,7 +188,22 @@ impl Htsg {
                 }
             })
             .collect();
-        Ok(Htsg { params, channels })
+        let names = if params.wavelengths_um == RGB_WAVELENGTHS_UM {
+            Channels::default_for(3)
+        } else {
+            Channels::spectral(
+                params
+                    .wavelengths_um
+                    .iter()
+                    .map(|&w| nm_from_um(w))
+                    .collect(),
+            )
+        };
+        Ok(Htsg {
+            params,
+            channels,
+            names,
+        })
     }
 
     pub fn params(&self) -> &HtsgParams {
@@ -192,6 +223,18 @@ impl Htsg {
     /// As [`Htsg::eval`], also returning the largest number of series terms summed.
     pub fn eval_with_stats(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) -> HtsgStats {
         debug_assert_eq!(out.len(), self.channels.len());
+        self.eval_range(wi, wo, 0, out)
+    }
+
+    /// The channel names (and wavelengths when spectral).
+    pub fn channel_names(&self) -> &Channels {
+        &self.names
+    }
+
+    /// Channels `first..first + out.len()` of f_r(wi, wo), with the largest number of series
+    /// terms summed. Allocation-free.
+    pub fn eval_range(&self, wi: Vec3, wo: Vec3, first: usize, out: &mut [f64]) -> HtsgStats {
+        let consts = &self.channels[first..first + out.len()];
         // One-sided (the horizon counts as below); the negated comparison also sends NaN to 0.
         if !(wi.z > 0.0 && wo.z > 0.0 && wi.is_finite() && wo.is_finite()) {
             out.fill(0.0);
@@ -220,7 +263,7 @@ impl Htsg {
 
         let ln_common = dir_i.ln_s1_over_cos + dir_o.ln_s1_over_cos + ln_geometric;
         let mut stats = HtsgStats::default();
-        for (ch, o) in self.channels.iter().zip(out.iter_mut()) {
+        for (ch, o) in consts.iter().zip(out.iter_mut()) {
             // g = (2π σ (c_i + c_o)/λ)², kept as its logarithm (it can underflow).
             let ln_g = 2.0 * (ch.wave_number * sigma * v_z).ln();
             let series = DiffuseSeries::sum(ln_g, ch.tau2_k2_over_4 * v_xy2);
@@ -255,6 +298,212 @@ impl Htsg {
             *o = fresnel_complex(cos_i, sin2_i, ch.eta, ch.kappa) * (-g).exp() * shadow;
         }
         out
+    }
+}
+
+const HTSG_CITE: &str = "He, Torrance, Sillion & Greenberg 1991 (with errata)";
+
+/// The `htsg` model's parameters (spec/models.md; `nk`, `wavelengths_nm` are this crate's
+/// additions for spectral use, docs/spectral.md).
+pub const PARAMS: &[ParamDecl] = &[
+    ParamDecl::number("sigma0", 1e-6, SIGMA0_MAX_UM, 0.18).doc(
+        "σ0",
+        "µm",
+        "rms surface height",
+        HTSG_CITE,
+    ),
+    ParamDecl::number("tau", 1e-6, TAU_MAX_UM, 3.0).doc(
+        "τ",
+        "µm",
+        "autocorrelation length of the surface heights",
+        HTSG_CITE,
+    ),
+    ParamDecl::number("eta_re", 1e-6, 1e6, 1.5).per_channel().doc(
+        "η",
+        "1",
+        "real part of the relative complex index η + iκ (exclusive with nk)",
+        HTSG_CITE,
+    ),
+    ParamDecl::number("eta_im", 0.0, 1e6, 0.0).per_channel().doc(
+        "κ",
+        "1",
+        "imaginary part (extinction) of the relative complex index (exclusive with nk)",
+        HTSG_CITE,
+    ),
+    ParamDecl::structured(
+        "nk",
+        ParamKind::DataFile("CSV wavelength_nm,n,k"),
+        super::params::ParamDefault::Derived("none (eta_re, eta_im)"),
+    )
+    .doc(
+        "n, k",
+        "",
+        "tabulated η(λ), κ(λ), interpolated linearly at the wavelengths (instead of eta_re, eta_im)",
+        "docs/spectral.md",
+    ),
+    ParamDecl::number(
+        "wavelengths",
+        WAVELENGTH_RANGE_UM.0,
+        WAVELENGTH_RANGE_UM.1,
+        0.55,
+    )
+    .per_channel()
+    .derived_default("0.645/0.526/0.444 (R, G, B)")
+    .doc(
+        "λ",
+        "µm",
+        "wavelength of each channel (distinct); other than the RGB default, the channels are \
+         spectral samples (exclusive with wavelengths_nm)",
+        HTSG_CITE,
+    ),
+    super::params::WAVELENGTHS_NM,
+    ParamDecl::number("uniform_diffuse", 0.0, 1.0, 0.0)
+        .per_channel()
+        .doc("a", "1", "albedo of the uniform-diffuse term a/π", HTSG_CITE),
+];
+
+pub const DECL: ModelDecl = ModelDecl {
+    name: "htsg",
+    aliases: &[],
+    summary: "He–Torrance–Sillion–Greenberg physically based reflection (Kirchhoff diffraction \
+              by a Gaussian rough surface): directional-diffuse + uniform-diffuse parts; the \
+              specular part is a Dirac delta, reported separately and never tabulated",
+    formula: "F(c_h) S G D / (π c_i c_o) + a/π   (+ ρ_s(wi) δ, not pointwise)",
+    citation: HTSG_CITE,
+    params: PARAMS,
+    isotropic: "always",
+    reciprocal: true,
+    tabulable: true,
+};
+
+/// The zenith angles (degrees) and relative azimuths of the fixed direction set over which
+/// [`Htsg::series_terms_max`] reports the largest term count.
+const TERMS_THETAS_DEG: [f64; 8] = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 85.0, 89.0];
+const TERMS_PHIS_DEG: [f64; 3] = [0.0, 90.0, 180.0];
+
+/// One value if every channel has it, else the list (the channel count is fixed by the
+/// wavelengths, so a scalar re-parses to the same model).
+fn uniform_or_list(v: &[f64]) -> Value {
+    if v.iter().all(|&x| x == v[0]) {
+        v[0].into()
+    } else {
+        v.into()
+    }
+}
+
+impl Htsg {
+    pub(crate) fn from_params(r: &ParamReader) -> Result<Htsg> {
+        let ctx = r.context();
+        let mut cc = r.channel_count()?;
+        let from_nm = cc.wavelengths_nm().map(|w| w.to_vec());
+        let wavelengths_um = match (r.is_given("wavelengths"), from_nm) {
+            (true, Some(_)) => {
+                return Err(Error::input(format!(
+                    "{ctx}: wavelengths (µm) and wavelengths_nm are both given; give one"
+                )));
+            }
+            (true, None) => r.channel("wavelengths", &mut cc)?,
+            (false, Some(nm)) => nm.iter().map(|w| w / 1e3).collect(),
+            (false, None) => {
+                cc.record(
+                    ctx,
+                    "wavelengths (default R, G, B: 0.645/0.526/0.444 µm)",
+                    3,
+                )?;
+                RGB_WAVELENGTHS_UM.to_vec()
+            }
+        };
+        let nk = r.file("nk")?;
+        let (eta_re, eta_im) = match nk {
+            Some(path) => {
+                if let Some(key) = ["eta_re", "eta_im"].into_iter().find(|k| r.is_given(k)) {
+                    return Err(Error::input(format!(
+                        "{ctx}: {key} and nk are both given; nk = @{path} supplies η and κ"
+                    )));
+                }
+                (Vec::new(), Vec::new())
+            }
+            None => (r.channel("eta_re", &mut cc)?, r.channel("eta_im", &mut cc)?),
+        };
+        let uniform_diffuse = r.channel("uniform_diffuse", &mut cc)?;
+        let c = cc.count();
+        let wavelengths_um = broadcast(&wavelengths_um, c);
+        let (eta_re, eta_im) = match nk {
+            None => (broadcast(&eta_re, c), broadcast(&eta_im, c)),
+            Some(path) => {
+                let nm: Vec<f64> = wavelengths_um.iter().map(|&w| nm_from_um(w)).collect();
+                OpticalConstants::read_csv(std::path::Path::new(path))?
+                    .at(&nm)
+                    .map_err(|e| Error::input(format!("{ctx}: nk: {e}")))?
+            }
+        };
+        Htsg::new(HtsgParams {
+            sigma0_um: r.number("sigma0")?,
+            tau_um: r.number("tau")?,
+            eta_re,
+            eta_im,
+            wavelengths_um,
+            uniform_diffuse: broadcast(&uniform_diffuse, c),
+        })
+    }
+
+    /// Canonical JSON (spec/models.md names; η, κ written out even when read from `nk`).
+    pub(crate) fn to_json(&self) -> Value {
+        let p = &self.params;
+        let wavelengths = if p.wavelengths_um.len() == 1 {
+            p.wavelengths_um[0].into()
+        } else {
+            Value::from(p.wavelengths_um.clone())
+        };
+        json!({
+            "model": "htsg",
+            "sigma0": p.sigma0_um,
+            "tau": p.tau_um,
+            "eta_re": uniform_or_list(&p.eta_re),
+            "eta_im": uniform_or_list(&p.eta_im),
+            "wavelengths": wavelengths,
+            "uniform_diffuse": uniform_or_list(&p.uniform_diffuse),
+        })
+    }
+
+    /// The largest number of directional-diffuse series terms any channel sums, over a fixed
+    /// set of direction pairs: θi, θo ∈ {0, 15, 30, 45, 60, 75, 85, 89}°, relative azimuth
+    /// ∈ {0, 90, 180}° (the most terms are needed near normal incidence on rough surfaces,
+    /// where g = (2πσ(c_i + c_o)/λ)² is largest).
+    pub fn series_terms_max(&self) -> usize {
+        let mut out = vec![0.0; self.channels.len()];
+        let mut most = 0;
+        for &ti in &TERMS_THETAS_DEG {
+            for &to in &TERMS_THETAS_DEG {
+                for &dphi in &TERMS_PHIS_DEG {
+                    let wi = Vec3::from_spherical(ti.to_radians(), 0.0);
+                    let wo = Vec3::from_spherical(to.to_radians(), dphi.to_radians());
+                    most = most.max(self.eval_with_stats(wi, wo, &mut out).max_terms);
+                }
+            }
+        }
+        most
+    }
+
+    /// The provenance note of a table of this model: what the table holds, and the specular
+    /// delta's coefficient, which it does not.
+    pub fn tabulation_note(&self) -> String {
+        let fmt = |v: Vec<f64>| {
+            v.iter()
+                .map(|x| format!("{x:.4e}"))
+                .collect::<Vec<_>>()
+                .join("/")
+        };
+        let at =
+            |deg: f64| fmt(self.specular_coefficient(Vec3::from_spherical(deg.to_radians(), 0.0)));
+        format!(
+            "htsg: the table holds the directional-diffuse and uniform-diffuse parts only; the \
+             specular part is a Dirac delta (coefficient ρ_s(wi) = F(θi) e^(−g) S(wi)², He et al. \
+             1991 Eq. 71, not tabulable): ρ_s = {} at θi = 0°, {} at 45°, {} at 75° (per channel)",
+            at(0.0),
+            at(45.0),
+            at(75.0)
+        )
     }
 }
 

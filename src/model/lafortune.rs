@@ -3,8 +3,7 @@
 
 use super::finite_large;
 use super::params::{
-    ChannelCount, ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast,
-    channel_json, fmt_num,
+    ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast, channel_json, fmt_num,
 };
 use crate::brdf::Channels;
 use crate::geometry::Vec3;
@@ -56,6 +55,7 @@ pub const PARAMS: &[ParamDecl] = &[
         "none: N = 1; ngan: N = (n+2)/(2π max(cz², cx²)^(n/2)), isotropic lobes only",
         "Ngan et al. 2005",
     ),
+    super::params::WAVELENGTHS_NM,
 ];
 
 pub const DECL: ModelDecl = ModelDecl {
@@ -92,7 +92,7 @@ pub struct Lafortune {
 impl Lafortune {
     pub(crate) fn from_params(r: &ParamReader) -> Result<Lafortune> {
         let ctx = r.context();
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let diffuse = r.channel("diffuse", &mut cc)?;
         let items = match r.raw("lobes") {
             Some(Value::Array(items)) => items,
@@ -160,7 +160,7 @@ impl Lafortune {
             diffuse: broadcast(&diffuse, c),
             lobes,
             ngan_norm,
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 

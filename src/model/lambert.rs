@@ -1,15 +1,18 @@
 //! Lambertian diffuse reflection and the ideal mirror (spec/models.md).
 
-use super::params::{ChannelCount, ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
+use super::params::{ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
 use crate::Result;
 use crate::brdf::Channels;
 use crate::geometry::Vec3;
 use crate::math::FRAC_1_PI;
 use serde_json::{Value, json};
 
-pub const LAMBERT_PARAMS: &[ParamDecl] = &[ParamDecl::number("albedo", 0.0, 1.0, 0.5)
-    .per_channel()
-    .doc("ρ", "1", "diffuse reflectance (albedo)", "Lambert 1760")];
+pub const LAMBERT_PARAMS: &[ParamDecl] = &[
+    ParamDecl::number("albedo", 0.0, 1.0, 0.5)
+        .per_channel()
+        .doc("ρ", "1", "diffuse reflectance (albedo)", "Lambert 1760"),
+    super::params::WAVELENGTHS_NM,
+];
 
 pub const LAMBERT_DECL: ModelDecl = ModelDecl {
     name: "lambert",
@@ -32,12 +35,12 @@ pub struct Lambert {
 
 impl Lambert {
     pub(crate) fn from_params(r: &ParamReader) -> Result<Lambert> {
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let albedo = r.channel("albedo", &mut cc)?;
         let c = cc.count();
         Ok(Lambert {
             albedo: broadcast(&albedo, c),
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 
@@ -53,9 +56,12 @@ impl Lambert {
     }
 }
 
-pub const MIRROR_PARAMS: &[ParamDecl] = &[ParamDecl::number("albedo", 0.0, 1.0, 1.0)
-    .per_channel()
-    .doc("ρ", "1", "reflectance of the specular delta", "")];
+pub const MIRROR_PARAMS: &[ParamDecl] = &[
+    ParamDecl::number("albedo", 0.0, 1.0, 1.0)
+        .per_channel()
+        .doc("ρ", "1", "reflectance of the specular delta", ""),
+    super::params::WAVELENGTHS_NM,
+];
 
 pub const MIRROR_DECL: ModelDecl = ModelDecl {
     name: "mirror",
@@ -79,12 +85,12 @@ pub struct Mirror {
 
 impl Mirror {
     pub(crate) fn from_params(r: &ParamReader) -> Result<Mirror> {
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let albedo = r.channel("albedo", &mut cc)?;
         let c = cc.count();
         Ok(Mirror {
             albedo: broadcast(&albedo, c),
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 

@@ -4,8 +4,7 @@
 use super::finite_large;
 use super::fresnel::Fresnel;
 use super::params::{
-    Alias, ChannelCount, ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast,
-    channel_json,
+    Alias, ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast, channel_json,
 };
 use crate::brdf::Channels;
 use crate::geometry::Vec3;
@@ -266,6 +265,7 @@ pub const PARAMS: &[ParamDecl] = &[
     ParamDecl::number("scale", 0.0, 1e6, 1.0)
         .per_channel()
         .doc("", "1", "overall factor", ""),
+    super::params::WAVELENGTHS_NM,
 ];
 
 pub const DECL: ModelDecl = ModelDecl {
@@ -363,7 +363,7 @@ impl Microfacet {
             "smith-separable" => Shadowing::SmithSeparable,
             _ => Shadowing::VCavity,
         };
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let fresnel = Fresnel::read(r, "fresnel", r#"{"type":"none"}"#, &mut cc)?;
         let scale = r.channel("scale", &mut cc)?;
         let c = cc.count();
@@ -372,7 +372,7 @@ impl Microfacet {
             shadowing,
             fresnel: fresnel.broadcast(c),
             scale: broadcast(&scale, c),
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 

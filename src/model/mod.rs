@@ -26,6 +26,7 @@ pub mod ward;
 
 pub use ashikhmin_shirley::AshikhminShirley;
 pub use fresnel::{Fresnel, fresnel_conductor, fresnel_dielectric, fresnel_schlick};
+pub use htsg::Htsg;
 pub use lafortune::{Lafortune, LafortuneLobe};
 pub use lambert::{Lambert, Mirror};
 pub use microfacet::{
@@ -46,7 +47,7 @@ use crate::{Error, Result};
 use params::ParamReader;
 use serde_json::{Map, Value};
 
-/// Every model, in listing order. `htsg` is declared by its own module when it lands.
+/// Every model, in listing order.
 pub const CATALOG: &[ModelDecl] = &[
     lambert::LAMBERT_DECL,
     lambert::MIRROR_DECL,
@@ -58,6 +59,7 @@ pub const CATALOG: &[ModelDecl] = &[
     oren_nayar::DECL,
     ashikhmin_shirley::DECL,
     lafortune::DECL,
+    htsg::DECL,
     sum::DECL,
 ];
 
@@ -89,6 +91,7 @@ pub enum Model {
     OrenNayar(OrenNayar),
     AshikhminShirley(AshikhminShirley),
     Lafortune(Lafortune),
+    Htsg(Htsg),
     Sum(Sum),
 }
 
@@ -191,6 +194,7 @@ impl Model {
             "oren-nayar" => Model::OrenNayar(OrenNayar::from_params(&r)?),
             "ashikhmin-shirley" => Model::AshikhminShirley(AshikhminShirley::from_params(&r)?),
             "lafortune" => Model::Lafortune(Lafortune::from_params(&r)?),
+            "htsg" => Model::Htsg(Htsg::from_params(&r)?),
             "sum" => Model::Sum(Sum::from_params(&r, depth)?),
             // Every CATALOG name has an arm above.
             other => unreachable!("model {other} is declared but not constructed"),
@@ -201,7 +205,7 @@ impl Model {
     /// η and k), per-channel values as lists when the model has more than one channel.
     /// `Model::from_json(&m.to_json())` rebuilds the same model.
     pub fn to_json(&self) -> Value {
-        match self {
+        let mut v = match self {
             Model::Lambert(m) => m.to_json(),
             Model::Mirror(m) => m.to_json(),
             Model::Phong(m) => m.to_json(),
@@ -212,8 +216,14 @@ impl Model {
             Model::OrenNayar(m) => m.to_json(),
             Model::AshikhminShirley(m) => m.to_json(),
             Model::Lafortune(m) => m.to_json(),
-            Model::Sum(m) => m.to_json(),
+            // HTSG writes its wavelengths itself (µm, spec/models.md); a sum's terms carry theirs.
+            Model::Htsg(m) => return m.to_json(),
+            Model::Sum(m) => return m.to_json(),
+        };
+        if let (Some(w), Value::Object(obj)) = (self.channels().wavelengths_nm(), &mut v) {
+            obj.insert(params::WAVELENGTHS_NM.name.into(), params::channel_json(w));
         }
+        v
     }
 
     /// The canonical model name (`microfacet` for `ggx`).
@@ -234,6 +244,7 @@ impl Model {
             Model::OrenNayar(_) => &oren_nayar::DECL,
             Model::AshikhminShirley(_) => &ashikhmin_shirley::DECL,
             Model::Lafortune(_) => &lafortune::DECL,
+            Model::Htsg(_) => &htsg::DECL,
             Model::Sum(_) => &sum::DECL,
         }
     }
@@ -314,6 +325,9 @@ impl Model {
             Model::OrenNayar(m) => m.eval_channels(wi, wo, first, out),
             Model::AshikhminShirley(m) => m.eval_channels(wi, wo, first, out),
             Model::Lafortune(m) => m.eval_channels(wi, wo, first, out),
+            Model::Htsg(m) => {
+                m.eval_range(wi, wo, first, out);
+            }
             Model::Sum(m) => m.eval_channels(wi, wo, first, out),
         }
     }
@@ -332,6 +346,7 @@ impl Brdf for Model {
             Model::OrenNayar(m) => &m.channels,
             Model::AshikhminShirley(m) => &m.channels,
             Model::Lafortune(m) => &m.channels,
+            Model::Htsg(m) => m.channel_names(),
             Model::Sum(m) => &m.channels,
         }
     }
@@ -362,12 +377,70 @@ impl Brdf for Model {
             | Model::Phong(_)
             | Model::BlinnPhong(_)
             | Model::TorranceSparrow(_)
-            | Model::OrenNayar(_) => true,
+            | Model::OrenNayar(_)
+            | Model::Htsg(_) => true,
         }
     }
 
     fn describe(&self) -> String {
         self.to_json().to_string()
+    }
+
+    /// The coefficient of the Dirac-delta (specular) part per channel for light arriving
+    /// from `wi`, when the model has one: ρ for a `mirror`, ρ_s(wi) for `htsg`, summed over
+    /// the terms of a sum. This part is never in f_r or in a table; reports show it apart.
+    fn specular_coefficient(&self, wi: Vec3) -> Option<Vec<f64>> {
+        match self {
+            Model::Mirror(m) => Some(if wi.z > 0.0 {
+                m.albedo.clone()
+            } else {
+                vec![0.0; m.albedo.len()]
+            }),
+            Model::Htsg(m) => Some(m.specular_coefficient(wi)),
+            Model::Sum(s) => {
+                let c = s.channels.len();
+                let mut total: Option<Vec<f64>> = None;
+                for t in &s.terms {
+                    if let Some(a) = t.specular_coefficient(wi) {
+                        let acc = total.get_or_insert_with(|| vec![0.0; c]);
+                        for (ch, v) in acc.iter_mut().enumerate() {
+                            // A single-channel term applies to every channel.
+                            *v += if a.len() == 1 { a[0] } else { a[ch] };
+                        }
+                    }
+                }
+                total
+            }
+            _ => None,
+        }
+    }
+
+    /// For models evaluated by a series (`htsg`, also inside a sum): the largest number of
+    /// series terms any channel sums over the fixed direction set of
+    /// [`Htsg::series_terms_max`]; None for closed-form models.
+    fn series_terms_max(&self) -> Option<usize> {
+        match self {
+            Model::Htsg(m) => Some(m.series_terms_max()),
+            Model::Sum(s) => s.terms.iter().filter_map(Model::series_terms_max).max(),
+            _ => None,
+        }
+    }
+
+    fn provenance_notes(&self) -> Vec<String> {
+        match self {
+            Model::Htsg(m) => vec![m.tabulation_note()],
+            Model::Sum(s) => s
+                .terms
+                .iter()
+                .enumerate()
+                .flat_map(|(i, t)| {
+                    t.provenance_notes()
+                        .into_iter()
+                        .map(move |n| format!("sum: terms[{i}]: {n}"))
+                })
+                .collect(),
+            _ => Vec::new(),
+        }
     }
 }
 

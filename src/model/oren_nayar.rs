@@ -1,7 +1,7 @@
 //! Oren–Nayar rough diffuse reflection, qualitative model (Oren & Nayar 1994, Eq. 30).
 
 use super::finite_large;
-use super::params::{ChannelCount, ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
+use super::params::{ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
 use crate::Result;
 use crate::brdf::Channels;
 use crate::geometry::Vec3;
@@ -18,6 +18,7 @@ pub const PARAMS: &[ParamDecl] = &[
         "standard deviation of the facet slope angle",
         "Oren & Nayar 1994",
     ),
+    super::params::WAVELENGTHS_NM,
 ];
 
 pub const DECL: ModelDecl = ModelDecl {
@@ -45,7 +46,7 @@ pub struct OrenNayar {
 
 impl OrenNayar {
     pub(crate) fn from_params(r: &ParamReader) -> Result<OrenNayar> {
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let albedo = r.channel("albedo", &mut cc)?;
         let c = cc.count();
         let sigma = r.number("sigma")?;
@@ -55,7 +56,7 @@ impl OrenNayar {
             sigma,
             a: 1.0 - 0.5 * s2 / (s2 + 0.33),
             b: 0.45 * s2 / (s2 + 0.09),
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 

@@ -2,6 +2,7 @@
 //! table drives parsing and validation ([`ParamReader`]), the compact grammar, the `models`
 //! listing and `docs/models.md`.
 
+use crate::brdf::Channels;
 use crate::{Error, Result};
 use serde_json::{Map, Value, json};
 
@@ -20,6 +21,8 @@ pub enum ParamKind {
     Lobes,
     /// A list of models (the terms of a sum).
     Terms,
+    /// A data file named as `@path` (e.g. a CSV of tabulated η, k over wavelength).
+    DataFile(&'static str),
 }
 
 /// The value a parameter takes when it is not given.
@@ -132,6 +135,7 @@ impl ParamDecl {
             ParamKind::Fresnel => "fresnel type (below)".into(),
             ParamKind::Lobes => "list of lobes (below)".into(),
             ParamKind::Terms => "list of models".into(),
+            ParamKind::DataFile(what) => format!("@file ({what})"),
         }
     }
 
@@ -171,6 +175,10 @@ impl ParamDecl {
             ParamKind::Fresnel => v["kind"] = "fresnel".into(),
             ParamKind::Lobes => v["kind"] = "lobes".into(),
             ParamKind::Terms => v["kind"] = "terms".into(),
+            ParamKind::DataFile(what) => {
+                v["kind"] = "file".into();
+                v["contents"] = what.into();
+            }
         }
         v
     }
@@ -241,14 +249,51 @@ pub fn fmt_num(x: f64) -> String {
 /// hostile spec from making every evaluation and table enormous.
 pub const MAX_CHANNELS: usize = 4096;
 
+/// The parameter every model (but `sum`) accepts to make its channels spectral samples.
+pub const WAVELENGTHS_NM: ParamDecl = ParamDecl::number("wavelengths_nm", 1.0, 1e6, 550.0)
+    .per_channel()
+    .derived_default("none (channels are not spectral)")
+    .doc(
+        "λ",
+        "nm",
+        "wavelength of each channel, strictly increasing; makes the channels spectral samples \
+         named by wavelength (per-channel values then follow these wavelengths)",
+        "docs/spectral.md",
+    );
+
 /// Tracks the lengths of per-channel lists so that they agree: scalars (and one-element
-/// lists) broadcast; every longer list must have the same length C.
+/// lists) broadcast; every longer list must have the same length C. When the model's
+/// channels are spectral, it also holds their wavelengths, which fix C.
 #[derive(Debug, Default)]
 pub(crate) struct ChannelCount {
     first: Option<(String, usize)>,
+    wavelengths_nm: Option<Vec<f64>>,
 }
 
 impl ChannelCount {
+    /// A count whose C is fixed by spectral wavelengths (nm; already checked to be finite,
+    /// positive and strictly increasing): every per-channel list must then have N values.
+    pub fn spectral(name: &str, wavelengths_nm: Vec<f64>) -> ChannelCount {
+        ChannelCount {
+            first: Some((name.to_string(), wavelengths_nm.len())),
+            wavelengths_nm: Some(wavelengths_nm),
+        }
+    }
+
+    /// The spectral wavelengths (nm), when the channels are spectral.
+    pub fn wavelengths_nm(&self) -> Option<&[f64]> {
+        self.wavelengths_nm.as_deref()
+    }
+
+    /// The channels of a model with C = `c` channels: spectral samples named by wavelength,
+    /// or the conventional names.
+    pub fn channels(&self, c: usize) -> Channels {
+        match &self.wavelengths_nm {
+            Some(w) if w.len() == c => Channels::spectral(w.clone()),
+            _ => Channels::default_for(c),
+        }
+    }
+
     /// Records that parameter `name` of `context` has `len` values.
     pub fn record(&mut self, context: &str, name: &str, len: usize) -> Result<()> {
         if len <= 1 {
@@ -276,6 +321,22 @@ impl ChannelCount {
     pub fn count(&self) -> usize {
         self.first.as_ref().map_or(1, |(_, n)| *n)
     }
+}
+
+/// Checks that wavelengths are strictly increasing (they were range-checked already).
+pub(crate) fn check_increasing(context: &str, name: &str, w: &[f64], unit: &str) -> Result<()> {
+    for (i, pair) in w.windows(2).enumerate() {
+        if pair[1] <= pair[0] {
+            return Err(Error::input(format!(
+                "{context}: {name}[{}] = {} {unit} is not greater than {name}[{i}] = {} {unit}; \
+                 wavelengths must be strictly increasing",
+                i + 1,
+                fmt_num(pair[1]),
+                fmt_num(pair[0])
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// `v` with one value per channel: a single value is repeated `c` times.
@@ -440,6 +501,37 @@ impl<'a> ParamReader<'a> {
             values.len(),
         )?;
         Ok(values)
+    }
+
+    /// The channel count of a model: fixed by `wavelengths_nm` when that is given (checked
+    /// to be strictly increasing), else empty.
+    pub fn channel_count(&self) -> Result<ChannelCount> {
+        if !self.is_given(WAVELENGTHS_NM.name) {
+            return Ok(ChannelCount::default());
+        }
+        let mut scratch = ChannelCount::default();
+        let w = self.channel(WAVELENGTHS_NM.name, &mut scratch)?;
+        let name = format!("{}{}", self.prefix, WAVELENGTHS_NM.name);
+        check_increasing(self.context, &name, &w, "nm")?;
+        Ok(ChannelCount::spectral(&name, w))
+    }
+
+    /// The path of a data-file parameter (`@path`; the `@` is optional), when given.
+    pub fn file(&self, name: &str) -> Result<Option<&'a str>> {
+        let d = self.decl(name);
+        let ParamKind::DataFile(what) = d.kind else {
+            panic!("{}: {name} is not a file parameter", self.context)
+        };
+        match self.obj.get(name) {
+            None => Ok(None),
+            Some(Value::String(s)) if !s.trim_start_matches('@').is_empty() => {
+                Ok(Some(s.strip_prefix('@').unwrap_or(s)))
+            }
+            Some(v) => Err(Error::input(format!(
+                "{}: {}{name} = {v} is not a file name (expected \"@path\" of {what})",
+                self.context, self.prefix
+            ))),
+        }
     }
 
     /// A word from the declared choices, or its default.

@@ -1,6 +1,6 @@
 //! Phong and Blinn–Phong lobes (spec/models.md).
 
-use super::params::{ChannelCount, ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
+use super::params::{ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
 use crate::Result;
 use crate::brdf::Channels;
 use crate::geometry::Vec3;
@@ -30,6 +30,7 @@ pub const PHONG_PARAMS: &[ParamDecl] = &[
         "energy: N = (n+2)/(2π) (modified Phong, Lewis 1994); none: N = 1",
         "Lewis 1994",
     ),
+    super::params::WAVELENGTHS_NM,
 ];
 
 pub const PHONG_DECL: ModelDecl = ModelDecl {
@@ -56,14 +57,14 @@ pub struct Phong {
 
 impl Phong {
     pub(crate) fn from_params(r: &ParamReader) -> Result<Phong> {
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let albedo = r.channel("albedo", &mut cc)?;
         let c = cc.count();
         Ok(Phong {
             albedo: broadcast(&albedo, c),
             exponent: r.number("exponent")?,
             energy_norm: r.word("norm")? == "energy",
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 
@@ -105,6 +106,7 @@ pub const BLINN_PHONG_PARAMS: &[ParamDecl] = &[
         "exponent of h.z",
         "Blinn 1977",
     ),
+    super::params::WAVELENGTHS_NM,
 ];
 
 pub const BLINN_PHONG_DECL: ModelDecl = ModelDecl {
@@ -129,13 +131,13 @@ pub struct BlinnPhong {
 
 impl BlinnPhong {
     pub(crate) fn from_params(r: &ParamReader) -> Result<BlinnPhong> {
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let albedo = r.channel("albedo", &mut cc)?;
         let c = cc.count();
         Ok(BlinnPhong {
             albedo: broadcast(&albedo, c),
             exponent: r.number("exponent")?,
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 

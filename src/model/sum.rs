@@ -74,30 +74,39 @@ impl Sum {
         Sum::new(terms)
     }
 
-    /// The sum of `terms`; single-channel terms broadcast, the others must agree in C.
+    /// The sum of `terms`; single-channel terms broadcast, the others must agree in C and
+    /// in what their channels are (R, G, B or the same spectral wavelengths).
     pub fn new(terms: Vec<Model>) -> Result<Sum> {
-        let mut first: Option<(usize, usize)> = None;
+        let mut first: Option<(usize, &Channels)> = None;
         for (i, t) in terms.iter().enumerate() {
-            let c = t.channels().len();
+            let ch = t.channels();
+            let c = ch.len();
             if c <= 1 {
                 continue;
             }
             match first {
-                None => first = Some((i, c)),
-                Some((j, n)) if n != c => {
+                None => first = Some((i, ch)),
+                Some((j, other)) if other.len() != c => {
                     return Err(Error::input(format!(
-                        "sum: terms[{i}] has {c} channels but terms[{j}] has {n} (channel counts \
-                         must agree; a single-channel term applies to every channel)"
+                        "sum: terms[{i}] has {c} channels but terms[{j}] has {} (channel counts \
+                         must agree; a single-channel term applies to every channel)",
+                        other.len()
+                    )));
+                }
+                Some((j, other)) if other != ch => {
+                    return Err(Error::input(format!(
+                        "sum: terms[{i}] has channels {} but terms[{j}] has {} (adding different \
+                         channels is meaningless; give every multi-channel term the same \
+                         wavelengths_nm)",
+                        ch.names().join(", "),
+                        other.names().join(", ")
                     )));
                 }
                 Some(_) => {}
             }
         }
-        let c = first.map_or(1, |(_, n)| n);
-        Ok(Sum {
-            terms,
-            channels: Channels::default_for(c),
-        })
+        let channels = first.map_or_else(|| Channels::default_for(1), |(_, ch)| ch.clone());
+        Ok(Sum { terms, channels })
     }
 
     pub(crate) fn to_json(&self) -> Value {

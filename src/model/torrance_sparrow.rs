@@ -4,8 +4,7 @@ use super::finite_large;
 use super::fresnel::Fresnel;
 use super::microfacet::v_cavity_g;
 use super::params::{
-    ChannelCount, ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast,
-    channel_json,
+    ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast, channel_json,
 };
 use crate::Result;
 use crate::brdf::Channels;
@@ -36,6 +35,7 @@ pub const PARAMS: &[ParamDecl] = &[
     ParamDecl::number("scale", 0.0, 1e6, 1.0)
         .per_channel()
         .doc("", "1", "overall factor", ""),
+    super::params::WAVELENGTHS_NM,
 ];
 
 pub const DECL: ModelDecl = ModelDecl {
@@ -60,7 +60,7 @@ pub struct TorranceSparrow {
 
 impl TorranceSparrow {
     pub(crate) fn from_params(r: &ParamReader) -> Result<TorranceSparrow> {
-        let mut cc = ChannelCount::default();
+        let mut cc = r.channel_count()?;
         let fresnel = Fresnel::read(r, "fresnel", DEFAULT_FRESNEL, &mut cc)?;
         let scale = r.channel("scale", &mut cc)?;
         let c = cc.count();
@@ -68,7 +68,7 @@ impl TorranceSparrow {
             m: r.number("m")?,
             fresnel: fresnel.broadcast(c),
             scale: broadcast(&scale, c),
-            channels: Channels::default_for(c),
+            channels: cc.channels(c),
         })
     }
 
