@@ -98,4 +98,10 @@ pub trait Brdf: Send + Sync {
 
     /// A one-line description of the source for provenance and reports.
     fn describe(&self) -> String;
+
+    /// The analytic model behind this source, when it is one (lets tabulation pick a fast
+    /// path that exploits the model's structure).
+    fn as_model(&self) -> Option<&crate::model::Model> {
+        None
+    }
 }

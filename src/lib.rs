@@ -10,6 +10,7 @@ pub mod check;
 pub mod cli;
 pub mod codec;
 pub mod error;
+pub mod fast;
 pub mod geometry;
 pub mod grid;
 pub mod io;

@@ -369,6 +369,10 @@ impl Brdf for Model {
     fn describe(&self) -> String {
         self.to_json().to_string()
     }
+
+    fn as_model(&self) -> Option<&Model> {
+        Some(self)
+    }
 }
 
 /// `obj` with the alias's preset parameters added; a conflicting explicit value is an error.
