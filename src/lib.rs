@@ -5,6 +5,7 @@
 //! written in one of the [`io`] formats, read back, evaluated anywhere by interpolation and
 //! checked against its source with the metrics of [`check`].
 
+pub mod bench;
 pub mod brdf;
 pub mod check;
 pub mod cli;
