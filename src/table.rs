@@ -177,6 +177,20 @@ impl Table {
     /// has zeroed.
     #[inline]
     fn interpolate(&self, t_in: &[f64; 4], interp: Interp, strides: &[usize; 4], out: &mut [f64]) {
+        self.interpolate_masked(t_in, interp, strides, &self.valid[..], out)
+    }
+
+    /// [`Table::interpolate`] reading validity from `mask` (the table's own flags or a
+    /// bitset of them that stays in cache).
+    #[inline(always)]
+    fn interpolate_masked<M: CellMask + ?Sized>(
+        &self,
+        t_in: &[f64; 4],
+        interp: Interp,
+        strides: &[usize; 4],
+        mask: &M,
+        out: &mut [f64],
+    ) {
         let axes = self.grid.axes();
         let d = axes.len();
         let c = self.channels.len();
@@ -239,7 +253,7 @@ impl Table {
                 w *= wk;
                 flat += i * strides[k];
             }
-            if w == 0.0 || !self.valid[flat] {
+            if w == 0.0 || !mask.is_valid(flat) {
                 continue;
             }
             wsum += w;
@@ -284,6 +298,11 @@ impl Table {
         /// Pairs per parallel work item.
         const CHUNK: usize = 4096;
         let indexer = HalfdiffIndexer::new(&self.grid);
+        // The validity flags as bits: 1/8 of the memory, so they stay in cache.
+        let bits = match &indexer {
+            Some(_) => ValidBits::new(&self.valid),
+            None => ValidBits::new(&[]),
+        };
         let strides = self.strides();
         out.par_chunks_mut(CHUNK * c)
             .zip(pairs.par_chunks(CHUNK))
@@ -298,14 +317,91 @@ impl Table {
                 let mut ok = [false; BLOCK];
                 for (out, pairs) in out.chunks_mut(BLOCK * c).zip(pairs.chunks(BLOCK)) {
                     ix.indices(pairs, &mut t, &mut ok);
-                    for ((o, tk), &okk) in out.chunks_exact_mut(c).zip(&t).zip(&ok) {
-                        o.fill(0.0);
-                        if okk {
-                            self.interpolate(tk, interp, &strides, o);
-                        }
+                    let t = &t[..pairs.len()];
+                    // Start every cache miss of the block before using any: the table is
+                    // larger than the caches and the corners of random pairs are scattered.
+                    self.prefetch_corners(t, &ok, &strides);
+                    if ix.use_avx2 {
+                        #[cfg(target_arch = "x86_64")]
+                        // SAFETY: `use_avx2` is only true when the CPU reports AVX2 and FMA.
+                        unsafe {
+                            self.interpolate_block_avx2(t, &ok, interp, &strides, &bits, out)
+                        };
+                    } else {
+                        self.interpolate_block(t, &ok, interp, &strides, &bits, out);
                     }
                 }
             });
+    }
+
+    #[inline(always)]
+    fn interpolate_block(
+        &self,
+        t: &[[f64; 4]],
+        ok: &[bool],
+        interp: Interp,
+        strides: &[usize; 4],
+        bits: &ValidBits,
+        out: &mut [f64],
+    ) {
+        let c = self.channels.len();
+        for ((o, tk), &okk) in out.chunks_exact_mut(c).zip(t).zip(ok) {
+            o.fill(0.0);
+            if okk {
+                self.interpolate_masked(tk, interp, strides, bits, o);
+            }
+        }
+    }
+
+    /// The same, compiled for AVX2 (floor and round become single instructions).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn interpolate_block_avx2(
+        &self,
+        t: &[[f64; 4]],
+        ok: &[bool],
+        interp: Interp,
+        strides: &[usize; 4],
+        bits: &ValidBits,
+        out: &mut [f64],
+    ) {
+        self.interpolate_block(t, ok, interp, strides, bits, out)
+    }
+
+    /// Hints the cache lines of the lower corner of every pair's cell along the two or
+    /// three slow axes (the fastest axis's neighbour is adjacent in memory).
+    #[inline]
+    fn prefetch_corners(&self, t: &[[f64; 4]], ok: &[bool], strides: &[usize; 4]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let axes = self.grid.axes();
+            let d = axes.len();
+            let c = self.channels.len();
+            let ptr = self.data.as_ptr();
+            let len = self.data.len();
+            for (tk, _) in t.iter().zip(ok).filter(|(_, o)| **o) {
+                let mut base = 0usize;
+                for k in 0..d {
+                    let n = axes[k].n;
+                    // Truncation of a value clamped to [0, n − 1]: never out of range.
+                    let i = tk[k].clamp(0.0, (n - 1) as f64) as usize;
+                    base += i * strides[k];
+                }
+                for corner in 0..(1usize << (d - 1)) {
+                    let mut flat = base;
+                    for k in 0..d - 1 {
+                        if corner >> k & 1 == 1 {
+                            flat += strides[k];
+                        }
+                    }
+                    let at = (flat * c).min(len.saturating_sub(1));
+                    // SAFETY: a prefetch is a hint and never faults; the address is inside
+                    // `data` anyway.
+                    unsafe { _mm_prefetch::<_MM_HINT_T0>(ptr.add(at) as *const i8) };
+                }
+            }
+        }
     }
 
     /// Search radius (in cells) of the nearest-valid fallback.
@@ -374,6 +470,43 @@ impl Table {
         }
         self.eval_into(wi, wo, interp, out);
         Ok(())
+    }
+}
+
+/// Validity of cells by flat index.
+trait CellMask {
+    fn is_valid(&self, flat: usize) -> bool;
+}
+
+impl CellMask for [bool] {
+    #[inline(always)]
+    fn is_valid(&self, flat: usize) -> bool {
+        self[flat]
+    }
+}
+
+/// Validity flags packed 64 to a word.
+struct ValidBits(Vec<u64>);
+
+impl ValidBits {
+    fn new(valid: &[bool]) -> ValidBits {
+        ValidBits(
+            valid
+                .chunks(64)
+                .map(|w| {
+                    w.iter()
+                        .enumerate()
+                        .fold(0u64, |acc, (i, &v)| acc | (v as u64) << i)
+                })
+                .collect(),
+        )
+    }
+}
+
+impl CellMask for ValidBits {
+    #[inline(always)]
+    fn is_valid(&self, flat: usize) -> bool {
+        self.0[flat >> 6] >> (flat & 63) & 1 == 1
     }
 }
 
@@ -694,5 +827,36 @@ mod tests {
                 );
             }
         }
+    }
+}
+#[cfg(test)]
+mod probe {
+    #[test]
+    #[ignore]
+    fn probe_fallback_fraction() {
+        use super::*;
+        let m = crate::model::Model::parse(crate::bench::PEER_GGX).unwrap();
+        let t = crate::tabulate::tabulate(&m, &Grid::merl(), &Default::default()).unwrap();
+        let set = crate::check::SampleSet::uniform(100_000, 1);
+        let strides = t.strides();
+        let (mut partial, mut none) = (0, 0);
+        for &(wi, wo) in &set.pairs {
+            let c = t.grid.coords_of(wi, wo).unwrap();
+            let mut tt = [0.0; 4];
+            for k in 0..3 { tt[k] = t.grid.axes()[k].continuous_index(c[k]); }
+            let mut nvalid = 0;
+            for corner in 0..8usize {
+                let mut flat = 0;
+                for k in 0..3 {
+                    let a = &t.grid.axes()[k];
+                    let f = tt[k].floor().max(0.0) as usize + (corner >> k & 1);
+                    let i = if a.is_periodic() { f % a.n } else { f.min(a.n - 1) };
+                    flat += i * strides[k];
+                }
+                if t.valid[flat] { nvalid += 1; }
+            }
+            if nvalid == 0 { none += 1 } else if nvalid < 8 { partial += 1 }
+        }
+        eprintln!("partial {partial} none {none} of 100000");
     }
 }
