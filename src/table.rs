@@ -829,34 +829,3 @@ mod tests {
         }
     }
 }
-#[cfg(test)]
-mod probe {
-    #[test]
-    #[ignore]
-    fn probe_fallback_fraction() {
-        use super::*;
-        let m = crate::model::Model::parse(crate::bench::PEER_GGX).unwrap();
-        let t = crate::tabulate::tabulate(&m, &Grid::merl(), &Default::default()).unwrap();
-        let set = crate::check::SampleSet::uniform(100_000, 1);
-        let strides = t.strides();
-        let (mut partial, mut none) = (0, 0);
-        for &(wi, wo) in &set.pairs {
-            let c = t.grid.coords_of(wi, wo).unwrap();
-            let mut tt = [0.0; 4];
-            for k in 0..3 { tt[k] = t.grid.axes()[k].continuous_index(c[k]); }
-            let mut nvalid = 0;
-            for corner in 0..8usize {
-                let mut flat = 0;
-                for k in 0..3 {
-                    let a = &t.grid.axes()[k];
-                    let f = tt[k].floor().max(0.0) as usize + (corner >> k & 1);
-                    let i = if a.is_periodic() { f % a.n } else { f.min(a.n - 1) };
-                    flat += i * strides[k];
-                }
-                if t.valid[flat] { nvalid += 1; }
-            }
-            if nvalid == 0 { none += 1 } else if nvalid < 8 { partial += 1 }
-        }
-        eprintln!("partial {partial} none {none} of 100000");
-    }
-}

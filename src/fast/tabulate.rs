@@ -247,23 +247,8 @@ impl<'a> HalfdiffMicrofacet<'a> {
             .zip(valid.iter_mut())
             .zip(self.pd.cos.iter().zip(&self.pd.sin));
         match self.form {
-            CellForm::GgxSeparable | CellForm::GgxCorrelated => {
-                let separable = self.form == CellForm::GgxSeparable;
-                for ((f, ok), (&cp, &sp)) in cells {
-                    let ((xi, yi, zi), (xo, yo, zo)) = dirs(r, cp, sp);
-                    let ri = (zi * zi + (sqr(ax * xi) + sqr(ay * yi))).sqrt();
-                    let ro = (zo * zo + (sqr(ax * xo) + sqr(ay * yo))).sqrt();
-                    let v = if separable {
-                        1.0 / ((zi + ri) * (zo + ro))
-                    } else {
-                        0.5 / (ri * zo + ro * zi)
-                    };
-                    // One-sided BRDF: the horizon counts as below (the generic path's test).
-                    let inside = zi > 0.0 && zo > 0.0;
-                    *ok = inside;
-                    *f = if inside { v } else { 0.0 };
-                }
-            }
+            CellForm::GgxSeparable => ggx_factors::<true>(r, ax, ay, &self.pd, factor, valid),
+            CellForm::GgxCorrelated => ggx_factors::<false>(r, ax, ay, &self.pd, factor, valid),
             CellForm::General => {
                 use crate::geometry::Vec3;
                 let m = self.model;
@@ -306,6 +291,35 @@ impl<'a> HalfdiffMicrofacet<'a> {
                 out[k * c + ch] = self.sf[itd * c + ch] * dh * factor[k];
             }
         }
+    }
+}
+
+/// G/(4 c_i c_o) of GGX with Smith shadowing (module docs) along a row: indexed loops over
+/// equal-length slices without calls or branches, so LLVM vectorizes them.
+#[inline(always)]
+fn ggx_factors<const SEPARABLE: bool>(
+    r: Row,
+    ax: f64,
+    ay: f64,
+    pd: &AxisTrig,
+    factor: &mut [f64],
+    valid: &mut [bool],
+) {
+    let n = factor.len();
+    let (cps, sps, valid) = (&pd.cos[..n], &pd.sin[..n], &mut valid[..n]);
+    for k in 0..n {
+        let ((xi, yi, zi), (xo, yo, zo)) = dirs(r, cps[k], sps[k]);
+        let ri = (zi * zi + (sqr(ax * xi) + sqr(ay * yi))).sqrt();
+        let ro = (zo * zo + (sqr(ax * xo) + sqr(ay * yo))).sqrt();
+        let v = if SEPARABLE {
+            1.0 / ((zi + ri) * (zo + ro))
+        } else {
+            0.5 / (ri * zo + ro * zi)
+        };
+        // One-sided BRDF: the horizon counts as below (the generic path's test).
+        let inside = zi > 0.0 && zo > 0.0;
+        valid[k] = inside;
+        factor[k] = if inside { v } else { 0.0 };
     }
 }
 
