@@ -213,9 +213,14 @@ impl Table {
             tcont[k] = t;
             if a.is_periodic() {
                 let f = t.floor();
-                let i0 = (f as i64).rem_euclid(n as i64) as usize;
+                // Inside one period (the usual case) no integer division is needed.
+                let i0 = if f >= 0.0 && f < n as f64 {
+                    f as usize
+                } else {
+                    (f as i64).rem_euclid(n as i64) as usize
+                };
                 lo[k] = i0;
-                hi[k] = (i0 + 1) % n;
+                hi[k] = if i0 + 1 == n { 0 } else { i0 + 1 };
                 frac[k] = t - f;
             } else if t <= 0.0 {
                 // Clamped θ ends: constant beyond the first/last sample.
@@ -313,23 +318,37 @@ impl Table {
                     }
                     return;
                 };
-                let mut t = [[0f64; 4]; BLOCK];
-                let mut ok = [false; BLOCK];
-                for (out, pairs) in out.chunks_mut(BLOCK * c).zip(pairs.chunks(BLOCK)) {
-                    ix.indices(pairs, &mut t, &mut ok);
-                    let t = &t[..pairs.len()];
-                    // Start every cache miss of the block before using any: the table is
-                    // larger than the caches and the corners of random pairs are scattered.
-                    self.prefetch_corners(t, &ok, &strides);
+                // Software pipeline: the angles and cache-line prefetches of block k + 1 are
+                // issued before block k is interpolated, so its misses overlap that work.
+                let mut cur = ([[0f64; 4]; BLOCK], [false; BLOCK]);
+                let mut next = cur;
+                let blocks: Vec<(&mut [f64], &[(Vec3, Vec3)])> =
+                    out.chunks_mut(BLOCK * c).zip(pairs.chunks(BLOCK)).collect();
+                if let Some((_, p)) = blocks.first() {
+                    ix.indices(p, &mut cur.0, &mut cur.1);
+                    self.prefetch_corners(&cur.0[..p.len()], &cur.1, &strides);
+                }
+                let n_blocks = blocks.len();
+                let mut blocks = blocks.into_iter().peekable();
+                for _ in 0..n_blocks {
+                    let Some((out, p)) = blocks.next() else {
+                        break;
+                    };
+                    if let Some((_, pn)) = blocks.peek() {
+                        ix.indices(pn, &mut next.0, &mut next.1);
+                        self.prefetch_corners(&next.0[..pn.len()], &next.1, &strides);
+                    }
+                    let t = &cur.0[..p.len()];
                     if ix.use_avx2 {
                         #[cfg(target_arch = "x86_64")]
                         // SAFETY: `use_avx2` is only true when the CPU reports AVX2 and FMA.
                         unsafe {
-                            self.interpolate_block_avx2(t, &ok, interp, &strides, &bits, out)
+                            self.interpolate_block_avx2(t, &cur.1, interp, &strides, &bits, out)
                         };
                     } else {
-                        self.interpolate_block(t, &ok, interp, &strides, &bits, out);
+                        self.interpolate_block(t, &cur.1, interp, &strides, &bits, out);
                     }
+                    std::mem::swap(&mut cur, &mut next);
                 }
             });
     }
@@ -395,10 +414,15 @@ impl Table {
                             flat += strides[k];
                         }
                     }
-                    let at = (flat * c).min(len.saturating_sub(1));
-                    // SAFETY: a prefetch is a hint and never faults; the address is inside
+                    // The cell and its neighbour along the fastest axis (often the next line).
+                    let first = (flat * c).min(len.saturating_sub(1));
+                    let last = (flat * c + 2 * c - 1).min(len.saturating_sub(1));
+                    // SAFETY: a prefetch is a hint and never faults; the addresses are inside
                     // `data` anyway.
-                    unsafe { _mm_prefetch::<_MM_HINT_T0>(ptr.add(at) as *const i8) };
+                    unsafe {
+                        _mm_prefetch::<_MM_HINT_T0>(ptr.add(first) as *const i8);
+                        _mm_prefetch::<_MM_HINT_T0>(ptr.add(last) as *const i8);
+                    }
                 }
             }
         }

@@ -8,7 +8,9 @@ fn assert_well_formed_xml(text: &str, what: &str) {
     let mut rest = text;
     while let Some(i) = rest.find('<') {
         rest = &rest[i + 1..];
-        let j = rest.find('>').unwrap_or_else(|| panic!("{what}: unterminated tag"));
+        let j = rest
+            .find('>')
+            .unwrap_or_else(|| panic!("{what}: unterminated tag"));
         let tag = &rest[..j];
         rest = &rest[j + 1..];
         if tag.starts_with('?') || tag.starts_with('!') || tag.ends_with('/') {
@@ -16,7 +18,9 @@ fn assert_well_formed_xml(text: &str, what: &str) {
         }
         let name = |t: &str| t.split_whitespace().next().unwrap_or("").to_string();
         if let Some(closing) = tag.strip_prefix('/') {
-            let open = stack.pop().unwrap_or_else(|| panic!("{what}: </{closing}> closes nothing"));
+            let open = stack
+                .pop()
+                .unwrap_or_else(|| panic!("{what}: </{closing}> closes nothing"));
             assert_eq!(open, name(closing), "{what}: mismatched tags");
         } else {
             stack.push(name(tag));
@@ -30,7 +34,9 @@ fn quick_bench_writes_parseable_files() {
     let dir = tempfile::tempdir().unwrap();
     let out = Command::cargo_bin("brdfpack")
         .unwrap()
-        .args(["bench", "--quick", "--runs", "1", "--pairs", "20000", "--out"])
+        .args([
+            "bench", "--quick", "--runs", "1", "--pairs", "20000", "--out",
+        ])
         .arg(dir.path())
         .env("BRDFPACK_SHARED", dir.path().join("absent"))
         .assert()
@@ -66,7 +72,10 @@ fn quick_bench_writes_parseable_files() {
     assert!(md.contains("| source | grid | codec |"));
     for svg in ["error_vs_bytes.svg", "error_vs_lookup_time.svg"] {
         let text = std::fs::read_to_string(dir.path().join(svg)).unwrap();
-        assert!(text.contains("<svg") && text.contains("Pareto front"), "{svg}");
+        assert!(
+            text.contains("<svg") && text.contains("Pareto front"),
+            "{svg}"
+        );
         assert_well_formed_xml(&text, svg);
     }
 }
