@@ -322,8 +322,7 @@ impl Table {
                 // issued before block k is interpolated, so its misses overlap that work.
                 let mut cur = ([[0f64; 4]; BLOCK], [false; BLOCK]);
                 let mut next = cur;
-                let blocks: Vec<(&mut [f64], &[(Vec3, Vec3)])> =
-                    out.chunks_mut(BLOCK * c).zip(pairs.chunks(BLOCK)).collect();
+                let blocks: Vec<_> = out.chunks_mut(BLOCK * c).zip(pairs.chunks(BLOCK)).collect();
                 if let Some((_, p)) = blocks.first() {
                     ix.indices(p, &mut cur.0, &mut cur.1);
                     self.prefetch_corners(&cur.0[..p.len()], &cur.1, &strides);
@@ -409,9 +408,9 @@ impl Table {
                 }
                 for corner in 0..(1usize << (d - 1)) {
                     let mut flat = base;
-                    for k in 0..d - 1 {
+                    for (k, &stride) in strides.iter().enumerate().take(d - 1) {
                         if corner >> k & 1 == 1 {
-                            flat += strides[k];
+                            flat += stride;
                         }
                     }
                     // The cell and its neighbour along the fastest axis (often the next line).
