@@ -7,7 +7,7 @@ use brdfpack::check::SampleSet;
 use brdfpack::grid::Grid;
 use brdfpack::model::Model;
 use brdfpack::table::{Interp, InterpolatedTable};
-use brdfpack::tabulate::{TabulateOptions, tabulate};
+use brdfpack::tabulate::{TabulateOptions, tabulate, tabulate_into};
 use divan::{Bencher, black_box, counter::ItemsCount};
 
 fn main() {
@@ -41,6 +41,38 @@ fn tabulate_merl_grid_ggx_conductor(bencher: Bencher) {
     bencher
         .counter(ItemsCount::new(g.cells()))
         .bench_local(|| tabulate(&m, &g, &TabulateOptions::default()).unwrap());
+}
+
+/// The peer comparison's measurement: tabulation into a table reused between runs
+/// (`brdfpack bench --tabulate-only` times the same; scripts/peer-compare.sh compares).
+#[divan::bench(sample_count = 10, args = ["merl", brdfpack::bench::PEER_ANISO_GRID])]
+fn tabulate_into_reused(bencher: Bencher, grid: &str) {
+    let (spec, g) = if grid == "merl" {
+        (GGX_CONDUCTOR, Grid::merl())
+    } else {
+        (
+            brdfpack::bench::PEER_GGX_ANISO,
+            brdfpack::grid::parse_grid_spec(grid).unwrap(),
+        )
+    };
+    let m = Model::parse(spec).unwrap();
+    let opts = TabulateOptions::default();
+    let mut t = tabulate(&m, &g, &opts).unwrap();
+    bencher
+        .counter(ItemsCount::new(g.cells()))
+        .bench_local(|| tabulate_into(&m, &g, &opts, &mut t).unwrap());
+}
+
+/// Batched lookups (10⁶ random pairs) in the MERL-grid table.
+#[divan::bench(sample_count = 10)]
+fn lookup_batch_merl_grid_table(bencher: Bencher) {
+    let m = Model::parse(GGX_CONDUCTOR).unwrap();
+    let table = tabulate(&m, &Grid::merl(), &TabulateOptions::default()).unwrap();
+    let set = SampleSet::uniform(1_000_000, 1);
+    let mut out = vec![0.0; set.pairs.len() * 3];
+    bencher
+        .counter(ItemsCount::new(set.pairs.len()))
+        .bench_local(|| table.eval_batch(&set.pairs, Interp::Linear, &mut out));
 }
 
 #[divan::bench(args = [Interp::Linear, Interp::Nearest])]

@@ -116,4 +116,10 @@ pub trait Brdf: Send + Sync {
     fn series_terms_max(&self) -> Option<usize> {
         None
     }
+
+    /// The analytic model behind this source, when it is one (lets tabulation pick a fast
+    /// path that exploits the model's structure).
+    fn as_model(&self) -> Option<&crate::model::Model> {
+        None
+    }
 }

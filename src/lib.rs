@@ -5,11 +5,13 @@
 //! written in one of the [`io`] formats, read back, evaluated anywhere by interpolation and
 //! checked against its source with the metrics of [`check`].
 
+pub mod bench;
 pub mod brdf;
 pub mod check;
 pub mod cli;
 pub mod codec;
 pub mod error;
+pub mod fast;
 pub mod geometry;
 pub mod grid;
 pub mod io;

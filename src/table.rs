@@ -152,6 +152,43 @@ impl Table {
         self
     }
 
+    /// An all-invalid table of `grid` × `channels` (zeroed memory, filled by tabulation).
+    pub(crate) fn zeroed(grid: Grid, channels: Channels) -> Table {
+        let cells = grid.cells();
+        Table {
+            data: vec![0.0; cells * channels.len()],
+            valid: vec![false; cells],
+            grid,
+            channels,
+            provenance: Provenance::default(),
+            exact: None,
+        }
+    }
+
+    /// Makes this table one of `grid` × `channels` with `provenance`, keeping the allocation
+    /// when the sizes agree. The samples are left as they are: the caller overwrites every
+    /// cell (value and validity) and keeps invalid cells at 0 and valid ones finite.
+    pub(crate) fn reset(&mut self, grid: &Grid, channels: &Channels, provenance: Provenance) {
+        let cells = grid.cells();
+        let c = channels.len();
+        if self.grid != *grid {
+            self.grid = grid.clone();
+        }
+        if self.channels != *channels {
+            self.channels = channels.clone();
+        }
+        self.provenance = provenance;
+        // New samples: exact values of an earlier source no longer describe them.
+        self.exact = None;
+        self.data.resize(cells * c, 0.0);
+        self.valid.resize(cells, false);
+    }
+
+    /// The sample and validity buffers, for filling in place (see [`Table::reset`]).
+    pub(crate) fn buffers_mut(&mut self) -> (&mut [f32], &mut [bool]) {
+        (&mut self.data, &mut self.valid)
+    }
+
     pub fn grid(&self) -> &Grid {
         &self.grid
     }
@@ -190,6 +227,44 @@ impl Table {
             return;
         };
         let axes = self.grid.axes();
+        let mut t = [0f64; 4];
+        for (tk, (a, &x)) in t.iter_mut().zip(axes.iter().zip(&coords)) {
+            *tk = a.continuous_index(x);
+        }
+        self.interpolate(&t, interp, &self.strides(), out);
+    }
+
+    /// Flat-index strides of the axes (C order).
+    fn strides(&self) -> [usize; 4] {
+        let axes = self.grid.axes();
+        let mut strides = [0usize; 4];
+        let mut s = 1;
+        for k in (0..axes.len()).rev() {
+            strides[k] = s;
+            s *= axes[k].n;
+        }
+        strides
+    }
+
+    /// Interpolates at continuous indices `t` (storage order) into `out`, which the caller
+    /// has zeroed.
+    #[inline]
+    fn interpolate(&self, t_in: &[f64; 4], interp: Interp, strides: &[usize; 4], out: &mut [f64]) {
+        self.interpolate_masked(t_in, interp, strides, &self.valid[..], out)
+    }
+
+    /// [`Table::interpolate`] reading validity from `mask` (the table's own flags or a
+    /// bitset of them that stays in cache).
+    #[inline(always)]
+    fn interpolate_masked<M: CellMask + ?Sized>(
+        &self,
+        t_in: &[f64; 4],
+        interp: Interp,
+        strides: &[usize; 4],
+        mask: &M,
+        out: &mut [f64],
+    ) {
+        let axes = self.grid.axes();
         let d = axes.len();
         let c = self.channels.len();
         // Per axis: two neighbour indices and the weight of the upper one.
@@ -200,7 +275,7 @@ impl Table {
         for k in 0..d {
             let a = &axes[k];
             let n = a.n;
-            let mut t = a.continuous_index(coords[k]);
+            let mut t = t_in[k];
             // A query rebuilt from a sample position lands within rounding (~1e-13) of an
             // integer index; snap it so the sample is returned exactly rather than blended
             // with a neighbour that may be orders of magnitude larger (a specular peak).
@@ -211,9 +286,14 @@ impl Table {
             tcont[k] = t;
             if a.is_periodic() {
                 let f = t.floor();
-                let i0 = (f as i64).rem_euclid(n as i64) as usize;
+                // Inside one period (the usual case) no integer division is needed.
+                let i0 = if f >= 0.0 && f < n as f64 {
+                    f as usize
+                } else {
+                    (f as i64).rem_euclid(n as i64) as usize
+                };
                 lo[k] = i0;
-                hi[k] = (i0 + 1) % n;
+                hi[k] = if i0 + 1 == n { 0 } else { i0 + 1 };
                 frac[k] = t - f;
             } else if t <= 0.0 {
                 // Clamped θ ends: constant beyond the first/last sample.
@@ -237,12 +317,6 @@ impl Table {
                 frac[k] = 0.0;
             }
         }
-        let mut strides = [0usize; 4];
-        let mut s = 1;
-        for k in (0..d).rev() {
-            strides[k] = s;
-            s *= axes[k].n;
-        }
         let mut wsum = 0.0;
         for corner in 0..(1usize << d) {
             let mut w = 1.0;
@@ -257,7 +331,7 @@ impl Table {
                 w *= wk;
                 flat += i * strides[k];
             }
-            if w == 0.0 || !self.valid[flat] {
+            if w == 0.0 || !mask.is_valid(flat) {
                 continue;
             }
             wsum += w;
@@ -278,6 +352,150 @@ impl Table {
             // value of the nearest valid sample rather than return a false 0.
             for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
                 *o = v as f64;
+            }
+        }
+    }
+
+    /// Evaluates the table at many direction pairs: `out[p·C + ch]` for pair `p` and channel
+    /// `ch`, the values of [`Table::eval_into`] (to ~1e-12 relative; same fallbacks at
+    /// invalid neighbours). Runs in parallel; half/difference grids without θ limit take a
+    /// vectorized path for the angles (`crate::fast::lookup`).
+    ///
+    /// # Panics
+    /// When `out.len() != pairs.len() × channels` (a caller bug, not an input error).
+    pub fn eval_batch(&self, pairs: &[(Vec3, Vec3)], interp: Interp, out: &mut [f64]) {
+        use crate::fast::lookup::{BLOCK, HalfdiffIndexer};
+        use rayon::prelude::*;
+        let c = self.channels.len();
+        assert_eq!(
+            out.len(),
+            pairs.len() * c,
+            "eval_batch: output length for {} pairs × {c} channels",
+            pairs.len()
+        );
+        /// Pairs per parallel work item.
+        const CHUNK: usize = 4096;
+        let indexer = HalfdiffIndexer::new(&self.grid);
+        // The validity flags as bits: 1/8 of the memory, so they stay in cache.
+        let bits = match &indexer {
+            Some(_) => ValidBits::new(&self.valid),
+            None => ValidBits::new(&[]),
+        };
+        let strides = self.strides();
+        out.par_chunks_mut(CHUNK * c)
+            .zip(pairs.par_chunks(CHUNK))
+            .for_each(|(out, pairs)| {
+                let Some(ix) = &indexer else {
+                    for (o, &(wi, wo)) in out.chunks_exact_mut(c).zip(pairs) {
+                        self.eval_into(wi, wo, interp, o);
+                    }
+                    return;
+                };
+                // Software pipeline: the angles and cache-line prefetches of block k + 1 are
+                // issued before block k is interpolated, so its misses overlap that work.
+                let mut cur = ([[0f64; 4]; BLOCK], [false; BLOCK]);
+                let mut next = cur;
+                let blocks: Vec<_> = out.chunks_mut(BLOCK * c).zip(pairs.chunks(BLOCK)).collect();
+                if let Some((_, p)) = blocks.first() {
+                    ix.indices(p, &mut cur.0, &mut cur.1);
+                    self.prefetch_corners(&cur.0[..p.len()], &cur.1, &strides);
+                }
+                let n_blocks = blocks.len();
+                let mut blocks = blocks.into_iter().peekable();
+                for _ in 0..n_blocks {
+                    let Some((out, p)) = blocks.next() else {
+                        break;
+                    };
+                    if let Some((_, pn)) = blocks.peek() {
+                        ix.indices(pn, &mut next.0, &mut next.1);
+                        self.prefetch_corners(&next.0[..pn.len()], &next.1, &strides);
+                    }
+                    let t = &cur.0[..p.len()];
+                    if ix.use_avx2 {
+                        #[cfg(target_arch = "x86_64")]
+                        // SAFETY: `use_avx2` is only true when the CPU reports AVX2 and FMA.
+                        unsafe {
+                            self.interpolate_block_avx2(t, &cur.1, interp, &strides, &bits, out)
+                        };
+                    } else {
+                        self.interpolate_block(t, &cur.1, interp, &strides, &bits, out);
+                    }
+                    std::mem::swap(&mut cur, &mut next);
+                }
+            });
+    }
+
+    #[inline(always)]
+    fn interpolate_block(
+        &self,
+        t: &[[f64; 4]],
+        ok: &[bool],
+        interp: Interp,
+        strides: &[usize; 4],
+        bits: &ValidBits,
+        out: &mut [f64],
+    ) {
+        let c = self.channels.len();
+        for ((o, tk), &okk) in out.chunks_exact_mut(c).zip(t).zip(ok) {
+            o.fill(0.0);
+            if okk {
+                self.interpolate_masked(tk, interp, strides, bits, o);
+            }
+        }
+    }
+
+    /// The same, compiled for AVX2 (floor and round become single instructions).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn interpolate_block_avx2(
+        &self,
+        t: &[[f64; 4]],
+        ok: &[bool],
+        interp: Interp,
+        strides: &[usize; 4],
+        bits: &ValidBits,
+        out: &mut [f64],
+    ) {
+        self.interpolate_block(t, ok, interp, strides, bits, out)
+    }
+
+    /// Hints the cache lines of the lower corner of every pair's cell along the two or
+    /// three slow axes (the fastest axis's neighbour is adjacent in memory).
+    #[inline]
+    fn prefetch_corners(&self, t: &[[f64; 4]], ok: &[bool], strides: &[usize; 4]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let axes = self.grid.axes();
+            let d = axes.len();
+            let c = self.channels.len();
+            let ptr = self.data.as_ptr();
+            let len = self.data.len();
+            for (tk, _) in t.iter().zip(ok).filter(|(_, o)| **o) {
+                let mut base = 0usize;
+                for k in 0..d {
+                    let n = axes[k].n;
+                    // Truncation of a value clamped to [0, n − 1]: never out of range.
+                    let i = tk[k].clamp(0.0, (n - 1) as f64) as usize;
+                    base += i * strides[k];
+                }
+                for corner in 0..(1usize << (d - 1)) {
+                    let mut flat = base;
+                    for (k, &stride) in strides.iter().enumerate().take(d - 1) {
+                        if corner >> k & 1 == 1 {
+                            flat += stride;
+                        }
+                    }
+                    // The cell and its neighbour along the fastest axis (often the next line).
+                    let first = (flat * c).min(len.saturating_sub(1));
+                    let last = (flat * c + 2 * c - 1).min(len.saturating_sub(1));
+                    // SAFETY: a prefetch is a hint and never faults; the addresses are inside
+                    // `data` anyway.
+                    unsafe {
+                        _mm_prefetch::<_MM_HINT_T0>(ptr.add(first) as *const i8);
+                        _mm_prefetch::<_MM_HINT_T0>(ptr.add(last) as *const i8);
+                    }
+                }
             }
         }
     }
@@ -348,6 +566,43 @@ impl Table {
         }
         self.eval_into(wi, wo, interp, out);
         Ok(())
+    }
+}
+
+/// Validity of cells by flat index.
+trait CellMask {
+    fn is_valid(&self, flat: usize) -> bool;
+}
+
+impl CellMask for [bool] {
+    #[inline(always)]
+    fn is_valid(&self, flat: usize) -> bool {
+        self[flat]
+    }
+}
+
+/// Validity flags packed 64 to a word.
+struct ValidBits(Vec<u64>);
+
+impl ValidBits {
+    fn new(valid: &[bool]) -> ValidBits {
+        ValidBits(
+            valid
+                .chunks(64)
+                .map(|w| {
+                    w.iter()
+                        .enumerate()
+                        .fold(0u64, |acc, (i, &v)| acc | (v as u64) << i)
+                })
+                .collect(),
+        )
+    }
+}
+
+impl CellMask for ValidBits {
+    #[inline(always)]
+    fn is_valid(&self, flat: usize) -> bool {
+        self.0[flat >> 6] >> (flat & 63) & 1 == 1
     }
 }
 
@@ -522,5 +777,153 @@ mod tests {
             .try_eval(inside, outside, Interp::Linear, &mut v)
             .unwrap_err();
         assert!(e.to_string().contains("outside the stored domain"));
+    }
+
+    /// Random pairs (uniform, grazing, near-specular), exact cell positions (the snap rule)
+    /// and pairs on the seams (φd fold, φh wrap, θh = 0, the normal, the horizon).
+    fn lookup_test_pairs(g: &Grid) -> Vec<(Vec3, Vec3)> {
+        use crate::check::SampleSet;
+        let mut pairs = Vec::new();
+        for set in [
+            SampleSet::uniform(20_000, 5),
+            SampleSet::grazing(5_000, 6),
+            SampleSet::specular(5_000, 7),
+        ] {
+            pairs.extend(set.pairs);
+        }
+        let mut idx = [0usize; 4];
+        let d = g.axes().len();
+        for f in (0..g.cells()).step_by(g.cells() / 3000 + 1) {
+            g.unflatten(f, &mut idx[..d]);
+            pairs.push(g.cell_dirs(&idx[..d]));
+        }
+        let mut rng = crate::math::SplitMix64::new(9);
+        for _ in 0..3000 {
+            let th = rng.next_f64() * 0.8;
+            let td = rng.next_f64() * 1.5;
+            let eps = (rng.next_f64() - 0.5) * 1e-7;
+            for (ph, pd) in [
+                (0.0, eps),
+                (eps, PI + eps),
+                (2.0 * PI + eps, -eps),
+                (eps, 0.5 * PI),
+            ] {
+                pairs.push(
+                    crate::geometry::HalfDiff {
+                        theta_h: th * eps.abs() * 1e3,
+                        phi_h: ph,
+                        theta_d: td,
+                        phi_d: pd,
+                    }
+                    .to_dirs(),
+                );
+                pairs.push(
+                    crate::geometry::HalfDiff {
+                        theta_h: th,
+                        phi_h: ph,
+                        theta_d: td,
+                        phi_d: pd,
+                    }
+                    .to_dirs(),
+                );
+            }
+        }
+        let n = Vec3::Z;
+        let grazing = Vec3::new(1.0, 0.0, 1e-9).try_normalize().unwrap();
+        pairs.extend([
+            (n, n),
+            (n, grazing),
+            (grazing, grazing),
+            (grazing, grazing.mirror()),
+        ]);
+        pairs.extend([
+            (Vec3::new(1.0, 0.0, 0.0), n),
+            (n, Vec3::new(0.0, 0.6, -0.8)),
+        ]);
+        pairs
+    }
+
+    /// True when some axis index of the pair is within 1e-9 of a half-integer.
+    fn on_cell_boundary(t: &Table, wi: Vec3, wo: Vec3) -> bool {
+        let c = t.grid().coords_of(wi, wo).unwrap();
+        t.grid().axes().iter().zip(c).any(|(a, x)| {
+            let i = a.continuous_index(x);
+            ((i - i.floor()) - 0.5).abs() < 1e-9
+        })
+    }
+
+    #[test]
+    fn eval_batch_equals_eval_into() {
+        let ggx = crate::model::Model::parse(
+            "ggx:alpha=0.05,shadowing=smith-separable,fresnel=conductor,\
+             eta=0.2004/0.924/1.1022,k=3.9129/2.4528/2.1421",
+        )
+        .unwrap();
+        let aniso = crate::model::Model::parse("ggx:alpha_x=0.1,alpha_y=0.3,fresnel=au").unwrap();
+        let smooth = Smooth(Channels::default_for(1), true);
+        let cases: Vec<(Table, &str)> = vec![
+            (
+                tabulate(&ggx, &Grid::merl(), &TabulateOptions::default()).unwrap(),
+                "merl",
+            ),
+            (
+                tabulate(
+                    &ggx,
+                    &parse_grid_spec("halfdiff3:32x24x20").unwrap(),
+                    &TabulateOptions::default(),
+                )
+                .unwrap(),
+                "halfdiff3 centred",
+            ),
+            (
+                tabulate(
+                    &aniso,
+                    &parse_grid_spec("halfdiff4:16x12x16x20,warp=sqrt/linear/linear/linear")
+                        .unwrap(),
+                    &TabulateOptions::default(),
+                )
+                .unwrap(),
+                "halfdiff4",
+            ),
+            (
+                tabulate(
+                    &smooth,
+                    &parse_grid_spec("spherical4:8x12x8x12").unwrap(),
+                    &TabulateOptions::default(),
+                )
+                .unwrap(),
+                "spherical4 (generic per pair)",
+            ),
+        ];
+        for (t, what) in &cases {
+            let pairs = lookup_test_pairs(t.grid());
+            let c = t.channels().len();
+            for interp in [Interp::Linear, Interp::Nearest] {
+                let mut batch = vec![f64::NAN; pairs.len() * c];
+                t.eval_batch(&pairs, interp, &mut batch);
+                let mut one = vec![0.0; c];
+                let mut worst: f64 = 0.0;
+                for (p, &(wi, wo)) in pairs.iter().enumerate() {
+                    t.eval_into(wi, wo, interp, &mut one);
+                    for ch in 0..c {
+                        let (a, b) = (batch[p * c + ch], one[ch]);
+                        let rel = (a - b).abs() / a.abs().max(b.abs()).max(f64::MIN_POSITIVE);
+                        if rel > 1e-6 && interp == Interp::Nearest && on_cell_boundary(t, wi, wo) {
+                            // A tie: either neighbour is the nearest; rounding picks one.
+                            continue;
+                        }
+                        assert!(
+                            rel <= 1e-6,
+                            "{what} {interp:?} pair {p} {wi:?} {wo:?}: batch {a:e} vs eval_into {b:e}"
+                        );
+                        worst = worst.max(rel);
+                    }
+                }
+                eprintln!(
+                    "{what} {interp:?}: {} pairs, worst relative difference {worst:e}",
+                    pairs.len()
+                );
+            }
+        }
     }
 }

@@ -2,6 +2,7 @@
 //! computed independently, so the bytes do not depend on the thread count).
 
 use crate::brdf::Brdf;
+use crate::fast::tabulate::HalfdiffMicrofacet;
 use crate::grid::Grid;
 use crate::table::{Provenance, Table};
 use crate::{Error, Result, TOOL_VERSION};
@@ -27,6 +28,22 @@ const CHUNK_CELLS: usize = 8192;
 /// Tabulates `src` on `grid`. Cells whose sample pair is below the horizon or beyond θmax
 /// are marked invalid (not silently 0).
 pub fn tabulate(src: &dyn Brdf, grid: &Grid, opts: &TabulateOptions) -> Result<Table> {
+    let mut table = Table::zeroed(grid.clone(), src.channels().clone());
+    tabulate_into(src, grid, opts, &mut table)?;
+    Ok(table)
+}
+
+/// Like [`tabulate`], into an existing table whose allocation is reused when its size fits
+/// (repeated tabulation, benchmarks). On error the table's contents are unspecified.
+///
+/// Microfacet models on half/difference grids take a fast path (`crate::fast::tabulate`)
+/// that gives the generic path's values to ~1e-15 relative and the same validity.
+pub fn tabulate_into(
+    src: &dyn Brdf,
+    grid: &Grid,
+    opts: &TabulateOptions,
+    table: &mut Table,
+) -> Result<()> {
     let mut notes = Vec::new();
     if grid.kind().is_isotropic() && !src.is_isotropic() {
         if !opts.allow_anisotropic {
@@ -57,11 +74,49 @@ pub fn tabulate(src: &dyn Brdf, grid: &Grid, opts: &TabulateOptions) -> Result<T
         );
     }
     notes.extend(src.provenance_notes());
+    let provenance = Provenance {
+        source: src.describe(),
+        tool: TOOL_VERSION.to_string(),
+        notes,
+    };
+    table.reset(grid, src.channels(), provenance);
+    let (data, valid) = table.buffers_mut();
+    if let Some(kernel) = src
+        .as_model()
+        .and_then(|m| HalfdiffMicrofacet::new(m, grid))
+        && tabulate_fast(&kernel, data, valid)
+    {
+        return Ok(());
+    }
+    tabulate_generic(src, grid, opts, data, valid)
+}
+
+/// The fast path: one work item per θh slab. False when a value does not fit in f32; the
+/// generic path then reports the cell.
+fn tabulate_fast(kernel: &HalfdiffMicrofacet, data: &mut [f32], valid: &mut [bool]) -> bool {
+    let slab = kernel.slab_cells();
+    let c = data.len() / valid.len().max(1);
+    data.par_chunks_mut(slab * c)
+        .zip(valid.par_chunks_mut(slab))
+        .enumerate()
+        .map_init(Vec::new, |factor: &mut Vec<f64>, (ih, (vals, ok))| {
+            factor.resize(slab, 0.0);
+            kernel.fill_slab(ih, vals, ok, factor)
+        })
+        .reduce(|| true, |a, b| a && b)
+}
+
+/// The generic path: every cell's directions through `Grid::cell_dirs` and `Brdf::eval`.
+fn tabulate_generic(
+    src: &dyn Brdf,
+    grid: &Grid,
+    opts: &TabulateOptions,
+    data: &mut [f32],
+    valid: &mut [bool],
+) -> Result<()> {
     let c = src.channels().len();
     let cells = grid.cells();
     let d = grid.axes().len();
-    let mut data = vec![0f32; cells * c];
-    let mut valid = vec![false; cells];
     let bar = if opts.progress {
         let b = indicatif::ProgressBar::new(cells as u64);
         b.set_style(
@@ -83,6 +138,9 @@ pub fn tabulate(src: &dyn Brdf, grid: &Grid, opts: &TabulateOptions) -> Result<T
                 let cell = first + j;
                 grid.unflatten(cell, &mut idx[..d]);
                 let (wi, wo) = grid.cell_dirs(&idx[..d]);
+                // The buffers may hold an earlier table: write every cell.
+                *okj = false;
+                vals[j * c..(j + 1) * c].fill(0.0);
                 if !grid.in_domain(wi, wo) {
                     continue;
                 }
@@ -110,18 +168,7 @@ pub fn tabulate(src: &dyn Brdf, grid: &Grid, opts: &TabulateOptions) -> Result<T
     if let Some(b) = bar {
         b.finish_and_clear();
     }
-    let provenance = Provenance {
-        source: src.describe(),
-        tool: TOOL_VERSION.to_string(),
-        notes,
-    };
-    Table::new(
-        grid.clone(),
-        src.channels().clone(),
-        provenance,
-        data,
-        valid,
-    )
+    Ok(())
 }
 
 #[cfg(test)]

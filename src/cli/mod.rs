@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 use std::io::Write;
 
+mod bench;
 mod check;
 mod common;
 mod compress;
@@ -34,6 +35,9 @@ enum Command {
     Check(check::CheckArgs),
     /// The whole job: tabulate, encode, write, read back and check; prints sizes, times, errors.
     Pack(pack::PackArgs),
+    /// Benchmarks: speed of tabulation and lookups, and a matrix of sources × grids × codecs
+    /// with sizes, times and errors (CSV, JSON, Markdown, SVG).
+    Bench(bench::BenchArgs),
     /// List the analytic models with their parameters, defaults, ranges and properties.
     Models(models::ModelsArgs),
     /// Report positivity, reciprocity, isotropy and directional albedo of a model or table.
@@ -68,6 +72,7 @@ pub fn main() -> i32 {
         Command::Convert(a) => convert::run(a),
         Command::Inspect(a) => inspect::run(a),
         Command::Compress(a) => compress::run(a),
+        Command::Bench(a) => bench::run(a),
     };
     match result {
         Ok(code) => code,

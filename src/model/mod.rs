@@ -442,6 +442,10 @@ impl Brdf for Model {
             _ => Vec::new(),
         }
     }
+
+    fn as_model(&self) -> Option<&Model> {
+        Some(self)
+    }
 }
 
 /// `obj` with the alias's preset parameters added; a conflicting explicit value is an error.

@@ -1,0 +1,145 @@
+//! `brdfpack bench`: speed of the hot paths and the sources × grids × codecs matrix
+//! (docs/benchmarks.md). Writes bench.csv, bench.json, bench.md and two SVG plots.
+
+use crate::bench::{
+    Machine, MatrixOptions, SpeedResult, run_matrix, speed_suite, to_csv, to_json, to_markdown,
+    to_svg,
+};
+use crate::io::atomic::write_output;
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Small grids, one codec, few runs: finishes in well under a minute (CI).
+    #[arg(long)]
+    pub quick: bool,
+    /// Only the speed workloads of the peer comparison (no matrix).
+    #[arg(long)]
+    pub speed: bool,
+    /// Only the tabulation workloads (implies --speed).
+    #[arg(long)]
+    pub tabulate_only: bool,
+    /// Only the lookup workload (implies --speed).
+    #[arg(long, conflicts_with = "tabulate_only")]
+    pub lookup_only: bool,
+    /// Timed runs per measurement (after one warm-up run); the median is reported.
+    #[arg(long)]
+    pub runs: Option<usize>,
+    /// Worker threads (default: all logical CPUs).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Pairs per lookup batch of the speed workload.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub pairs: usize,
+    /// Folder for the output files.
+    #[arg(long, default_value = "bench-out")]
+    pub out: PathBuf,
+    /// The shared reference folder (its data/rgl/*.bsdf join the matrix); default
+    /// $BRDFPACK_SHARED, else ../shared when it exists.
+    #[arg(long)]
+    pub shared: Option<PathBuf>,
+    /// Print the speed results as JSON lines on stdout (for scripts/peer-compare.sh).
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: BenchArgs) -> anyhow::Result<i32> {
+    let mut pool = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = a.threads {
+        if n == 0 {
+            return Err(crate::Error::input("--threads 0: give at least 1 thread").into());
+        }
+        pool = pool.num_threads(n);
+    }
+    let pool = pool
+        .build()
+        .map_err(|e| crate::Error::Failure(format!("thread pool: {e}")))?;
+    pool.install(|| run_in_pool(a))
+}
+
+fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
+    let machine = Machine::detect();
+    eprintln!("machine: {}", machine.describe());
+    let runs = a.runs.unwrap_or(if a.quick { 3 } else { 7 }).max(1);
+    let speed_only = a.speed || a.tabulate_only || a.lookup_only;
+    let which = if a.tabulate_only {
+        "tabulate"
+    } else if a.lookup_only {
+        "lookup"
+    } else if a.quick {
+        // The 64⁴ workload needs 400 MB; CI runs the MERL-grid ones.
+        "tabulate_merl"
+    } else {
+        ""
+    };
+    let mut speed: Vec<SpeedResult> = speed_suite(runs, which, a.pairs)?;
+    if a.quick && which == "tabulate_merl" {
+        speed.extend(speed_suite(runs, "lookup", a.pairs.min(100_000))?);
+    }
+    for r in &speed {
+        eprintln!(
+            "{:<34} {:>9} items  median {:>9.3} ms  (min {:.3}, max {:.3}, {} runs)  {:.3e}/s",
+            r.name,
+            r.items,
+            r.timing.median_s * 1e3,
+            r.timing.min_s * 1e3,
+            r.timing.max_s * 1e3,
+            r.timing.runs,
+            r.items_per_s
+        );
+        if a.json {
+            println!("{}", serde_json::to_string(r)?);
+        }
+    }
+    if speed_only {
+        return Ok(0);
+    }
+    let shared = a
+        .shared
+        .clone()
+        .or_else(|| std::env::var_os("BRDFPACK_SHARED").map(PathBuf::from))
+        .or_else(|| Some(PathBuf::from("../shared")).filter(|p| p.is_dir()));
+    let data = shared.map(|s| s.join("data")).filter(|d| d.is_dir());
+    match &data {
+        Some(d) => eprintln!("measured materials from {}", d.display()),
+        None => eprintln!("no shared data folder (--shared): analytic sources only"),
+    }
+    let opts = MatrixOptions {
+        quick: a.quick,
+        runs,
+        samples: if a.quick { 8192 } else { 65_536 },
+        shared_data: data,
+    };
+    let rows = run_matrix(&opts, |r| {
+        eprintln!(
+            "{:<24} {:<48} {:<18} {:>10} B  {:>6.2} bit/sample  log_rmse {:.3e}  {:.3e} lookups/s",
+            r.source, r.grid, r.codec, r.bytes, r.bits_per_sample, r.log_rmse, r.lookups_per_s
+        )
+    })?;
+    std::fs::create_dir_all(&a.out).map_err(|e| crate::Error::io(&a.out, e))?;
+    let files = [
+        ("bench.csv", to_csv(&rows)),
+        ("bench.json", to_json(&machine, &speed, &rows)),
+        ("bench.md", to_markdown(&machine, &speed, &rows)),
+        (
+            "error_vs_bytes.svg",
+            to_svg(&rows, |r| r.bytes as f64, "bytes", "error vs size")?,
+        ),
+        (
+            "error_vs_lookup_time.svg",
+            to_svg(
+                &rows,
+                |r| r.lookup_s * 1e9,
+                "ns per lookup (batched)",
+                "error vs lookup time",
+            )?,
+        ),
+    ];
+    for (name, text) in files {
+        let p = a.out.join(name);
+        write_output(&p, text.as_bytes())?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(0)
+}

@@ -1,0 +1,81 @@
+//! `brdfpack bench --quick` (what CI runs): finishes, and its files parse.
+
+use assert_cmd::Command;
+
+/// A minimal well-formedness check: every element opened is closed in order.
+fn assert_well_formed_xml(text: &str, what: &str) {
+    let mut stack: Vec<String> = Vec::new();
+    let mut rest = text;
+    while let Some(i) = rest.find('<') {
+        rest = &rest[i + 1..];
+        let j = rest
+            .find('>')
+            .unwrap_or_else(|| panic!("{what}: unterminated tag"));
+        let tag = &rest[..j];
+        rest = &rest[j + 1..];
+        if tag.starts_with('?') || tag.starts_with('!') || tag.ends_with('/') {
+            continue;
+        }
+        let name = |t: &str| t.split_whitespace().next().unwrap_or("").to_string();
+        if let Some(closing) = tag.strip_prefix('/') {
+            let open = stack
+                .pop()
+                .unwrap_or_else(|| panic!("{what}: </{closing}> closes nothing"));
+            assert_eq!(open, name(closing), "{what}: mismatched tags");
+        } else {
+            stack.push(name(tag));
+        }
+    }
+    assert!(stack.is_empty(), "{what}: unclosed {stack:?}");
+}
+
+#[test]
+fn quick_bench_writes_parseable_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "bench", "--quick", "--runs", "1", "--pairs", "20000", "--out",
+        ])
+        .arg(dir.path())
+        .env("BRDFPACK_SHARED", dir.path().join("absent"))
+        .assert()
+        .success()
+        .get_output()
+        .stderr
+        .clone();
+    let log = String::from_utf8_lossy(&out);
+    assert!(log.contains("rayon threads"), "machine line missing: {log}");
+    let csv = std::fs::read_to_string(dir.path().join("bench.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header, brdfpack::bench::CSV_COLUMNS);
+    let rows: Vec<&str> = lines.collect();
+    // lambert, ggx-conductor, ward-aniso × one grid × one codec.
+    assert_eq!(rows.len(), 3, "{csv}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("bench.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["schema"], "brdfpack-bench/1");
+    assert!(json["machine"]["threads"].as_u64().unwrap() >= 1);
+    let rows = json["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 3);
+    for r in rows {
+        assert!(r["bytes"].as_u64().unwrap() > 0);
+        assert!(r["lookups_per_s"].as_f64().unwrap() > 0.0);
+        assert!(r["log_rmse"].as_f64().unwrap().is_finite());
+    }
+    // Lambert is constant: its table reproduces it to f32 precision.
+    assert!(rows[0]["log_rmse"].as_f64().unwrap() < 1e-6);
+    assert_eq!(json["speed"].as_array().unwrap().len(), 2);
+    let md = std::fs::read_to_string(dir.path().join("bench.md")).unwrap();
+    assert!(md.contains("| source | grid | codec |"));
+    for svg in ["error_vs_bytes.svg", "error_vs_lookup_time.svg"] {
+        let text = std::fs::read_to_string(dir.path().join(svg)).unwrap();
+        assert!(
+            text.contains("<svg") && text.contains("Pareto front"),
+            "{svg}"
+        );
+        assert_well_formed_xml(&text, svg);
+    }
+}
