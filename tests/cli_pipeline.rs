@@ -1,5 +1,7 @@
 //! End-to-end tests of the pipeline commands: tabulate → file → check, pack, stdin/stdout.
 
+mod common;
+
 use assert_cmd::Command;
 use predicates::prelude::*;
 
@@ -261,4 +263,50 @@ fn a_failed_run_leaves_the_previous_file_intact_and_no_temporary() {
         .stderr(predicate::str::contains("mirror"));
     assert_eq!(std::fs::read(&out).unwrap(), b"previous contents");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}
+
+#[test]
+fn rgl_negative_values_pass_through_unless_clamped_and_inspect_counts_them() {
+    let Some(file) = common::shared_file("data/rgl/vch_golden_yellow_rgb.bsdf") else {
+        return;
+    };
+    // A fixture pair where Mitsuba returns a negative blue value (-0.0299).
+    let args = [
+        "--wi",
+        "0.48157772421836853,-0.23028609156608582,0.84560698270797729",
+        "--wo",
+        "-0.43477007746696472,0.35556581616401672,0.82737410068511963",
+        "--format",
+        "jsonl",
+    ];
+    let run = |extra: &[&str]| -> Vec<f64> {
+        let o = brdfpack()
+            .arg("eval")
+            .arg(&file)
+            .args(args)
+            .args(extra)
+            .assert()
+            .success();
+        let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
+        v["f"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let raw = run(&[]);
+    assert!(
+        (raw[2] - -0.029925483667138916).abs() < 1e-3 * 3.3,
+        "{raw:?}"
+    );
+    assert_eq!(run(&["--clamp-negative"])[2], 0.0);
+    brdfpack()
+        .arg("inspect")
+        .arg(&file)
+        .assert()
+        .success()
+        .stdout(predicate::str::contains(
+            "negative entries per channel: [0, 0, 1118]",
+        ));
 }

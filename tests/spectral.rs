@@ -708,3 +708,61 @@ fn merl_output_refuses_spectral_tables_until_converted() {
     let bytes = brdfpack::io::merl::to_bytes(&rgb).unwrap();
     assert!(bytes.len() > 3 * 1_000_000 * 8);
 }
+
+#[test]
+fn spectral_table_goes_through_compression_then_exr_and_back() {
+    use brdfpack::check::{SampleSet, check_set};
+    use brdfpack::codec::CodecRequest;
+    use brdfpack::table::{Interp, InterpolatedTable};
+    let w = slash_list(&sixteen_wavelengths());
+    let m = Model::parse(&format!(
+        "htsg:sigma0=0.2,uniform_diffuse=0.05,wavelengths_nm={w}"
+    ))
+    .unwrap();
+    let grid = parse_grid_spec("halfdiff3:16x16x32,warp=sqrt/linear/linear").unwrap();
+    let table = tabulate(&m, &grid, &TabulateOptions::default()).unwrap();
+    let set = SampleSet::uniform(4096, 3);
+    let reference = InterpolatedTable {
+        table: table.clone(),
+        interp: Interp::Linear,
+    };
+    for (spec, lossless) in [("lossless", true), ("dct:step=0.01,curve=log", false)] {
+        let codec = CodecRequest::parse(spec).unwrap().resolve(&table).unwrap();
+        let bytes = native::to_bytes(&table, &codec).unwrap();
+        let back = native::from_bytes(&bytes, Path::new("s.bpk")).unwrap();
+        assert_eq!(back.channels(), table.channels(), "{spec}");
+        if lossless {
+            assert_eq!(back.data(), table.data());
+        } else {
+            assert!(
+                bytes.len() < table.data().len() * 4 / 20,
+                "{spec}: {} bytes",
+                bytes.len()
+            );
+            let r = check_set(
+                &reference,
+                &InterpolatedTable {
+                    table: back.clone(),
+                    interp: Interp::Linear,
+                },
+                &set,
+            )
+            .unwrap();
+            assert_eq!(r.combined.nonfinite, 0);
+            assert!(
+                r.combined.log_rmse < 0.01,
+                "{spec}: {}",
+                r.combined.log_rmse
+            );
+        }
+        // The decoded table through EXR f32 and back: unchanged.
+        let exr =
+            brdfpack::io::exr::to_bytes(&back, &brdfpack::io::exr::ExrOptions::default()).unwrap();
+        let again = brdfpack::io::decode_table(&exr, Path::new("s.exr")).unwrap();
+        assert_eq!(again.data(), back.data(), "{spec}");
+        assert_eq!(
+            again.channels().wavelengths_nm(),
+            Some(&sixteen_wavelengths()[..])
+        );
+    }
+}

@@ -94,9 +94,14 @@ pub fn stderr_is_terminal() -> bool {
     std::io::stderr().is_terminal()
 }
 
-/// Overrides for sampling a source on a grid whose symmetry it lacks.
+/// How a source is sampled: overrides for a grid whose symmetry it lacks, and clamping of
+/// negative measured values.
 #[derive(Args, Debug, Clone, Default)]
-pub struct SymmetryArgs {
+pub struct SamplingArgs {
+    /// Clamp negative values of a measured source (RGL files hold some) to 0; by default they
+    /// are passed through, as the reference evaluator does.
+    #[arg(long)]
+    pub clamp_negative: bool,
     /// Sample an anisotropic source on an isotropic grid anyway (at φh = 0 / φi = 0);
     /// recorded in the file.
     #[arg(long)]
@@ -107,7 +112,17 @@ pub struct SymmetryArgs {
     pub allow_nonreciprocal: bool,
 }
 
-impl SymmetryArgs {
+impl SamplingArgs {
+    /// Applies `--clamp-negative` to an opened source.
+    pub fn apply(&self, source: Source) -> Source {
+        match source {
+            Source::Measured(m) if self.clamp_negative => {
+                Source::Measured(m.with_clamp_negative(true))
+            }
+            other => other,
+        }
+    }
+
     pub fn options(&self, progress: bool) -> crate::tabulate::TabulateOptions {
         crate::tabulate::TabulateOptions {
             allow_anisotropic: self.allow_anisotropic,

@@ -1,7 +1,7 @@
 //! `brdfpack compress`: re-encode a table with a given codec or the smallest codec meeting an
 //! error budget, and print the choice and its measured error.
 
-use super::common::{Lookup, Source, SymmetryArgs, stderr_is_terminal};
+use super::common::{Lookup, SamplingArgs, Source, stderr_is_terminal};
 use crate::Error;
 use crate::check::SampleSet;
 use crate::codec::CodecRequest;
@@ -22,7 +22,7 @@ pub struct CompressArgs {
     #[arg(long)]
     pub grid: Option<String>,
     #[command(flatten)]
-    pub symmetry: SymmetryArgs,
+    pub symmetry: SamplingArgs,
     /// Output native file.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -46,8 +46,8 @@ pub struct CompressArgs {
 }
 
 /// Opens the input as a table; a model or measured source is tabulated on `grid` first.
-fn read_table(input: &str, grid: Option<&str>, symmetry: &SymmetryArgs) -> anyhow::Result<Table> {
-    match Source::open(input)? {
+fn read_table(input: &str, grid: Option<&str>, symmetry: &SamplingArgs) -> anyhow::Result<Table> {
+    match symmetry.apply(Source::open(input)?) {
         Source::Table(t) => {
             if let Some(g) = grid {
                 return Err(Error::input(format!(

@@ -1,7 +1,7 @@
 //! `brdfpack convert`: a table (native, EXR, MERL) or a model to a table file in another
 //! format or on another grid.
 
-use super::common::{Lookup, OutputArgs, Source, SymmetryArgs};
+use super::common::{Lookup, OutputArgs, SamplingArgs, Source};
 use crate::grid::{Grid, parse_grid_spec};
 use crate::io::merl::merl_dims;
 use crate::io::{FormatName, OutputFormat, atomic, encode_table};
@@ -29,7 +29,7 @@ pub struct ConvertArgs {
     #[command(flatten)]
     pub out: OutputArgs,
     #[command(flatten)]
-    pub symmetry: SymmetryArgs,
+    pub symmetry: SamplingArgs,
     /// Convert spectral channels to linear sRGB (CIE 1931 2°, D65; docs/spectral.md), e.g.
     /// before writing MERL. An error when the input is not spectral.
     #[arg(long)]
@@ -41,7 +41,7 @@ pub struct ConvertArgs {
 
 /// What the input turned out to be.
 pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
-    let input = Source::open(&a.input)?;
+    let input = a.symmetry.apply(Source::open(&a.input)?);
     let grid = match (&a.grid, &input) {
         (Some(s), _) => parse_grid_spec(s)?,
         (None, Source::Table(t))

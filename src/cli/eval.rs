@@ -65,6 +65,10 @@ pub struct EvalArgs {
     #[arg(long, value_enum, default_value_t = crate::source::Lookup::Linear)]
     pub interp: crate::source::Lookup,
 
+    /// Clamp negative values of a measured source (RGL) to 0 instead of passing them through.
+    #[arg(long)]
+    pub clamp_negative: bool,
+
     /// Incident direction (towards the light) as a vector; normalized.
     #[arg(
         long,
@@ -124,6 +128,12 @@ const MAX_LINE_BYTES: usize = 64 * 1024;
 
 pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
     let brdf = crate::source::Source::open(&args.source)
+        .map(|s| match s {
+            crate::source::Source::Measured(m) if args.clamp_negative => {
+                crate::source::Source::Measured(m.with_clamp_negative(true))
+            }
+            other => other,
+        })
         .and_then(|s| s.into_brdf(args.interp))
         .map_err(|e| prefix_error(e, &format!("source {:?}", args.source)))?;
     let writer = RowWriter::new(&*brdf, args.format, args.echo);

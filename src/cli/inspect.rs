@@ -97,18 +97,39 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
     let bytes = atomic::read_input(&a.file)?;
     let format = detect(&bytes, &a.file);
     if format == Format::Rgl {
-        // Not a table: say what it is and stop (the RGL reader describes its fields).
+        // Not a table: a measured BRDF with its own layout (docs/rgl.md).
+        let rgl = crate::io::rgl::RglBsdf::from_bytes(&bytes, &a.file.display().to_string())?;
+        let info = rgl.info();
         if a.json {
             println!(
                 "{}",
                 serde_json::json!({"file": a.file.display().to_string(), "format": "rgl",
-                    "bytes": bytes.len(), "table": false})
+                    "bytes": bytes.len(), "table": false, "rgl": info})
             );
         } else {
             println!("file: {}", a.file.display());
             println!(
                 "format: rgl ({} bytes; a measured BRDF, not a table)",
                 bytes.len()
+            );
+            println!("description: {}", info.description);
+            println!(
+                "resolution: {}x{} samples per slice, {} θi slices, {} φi slice(s), VNDF {}x{}",
+                info.resolution[0],
+                info.resolution[1],
+                info.theta_i.len(),
+                info.phi_slices,
+                info.vndf_resolution[0],
+                info.vndf_resolution[1]
+            );
+            println!(
+                "values: {} entries per channel, range {:e} .. {:e}",
+                info.entries_per_channel, info.value_range[0], info.value_range[1]
+            );
+            println!(
+                "negative entries per channel: {:?} (passed through by eval, as the reference \
+                 does; --clamp-negative clamps them)",
+                info.negative_counts
             );
         }
         return Ok(0);

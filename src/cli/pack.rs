@@ -2,7 +2,7 @@
 //! check against the source, and report sizes, times and errors.
 
 use super::check::{Bounds, verdict};
-use super::common::{Lookup, Source, SymmetryArgs, stderr_is_terminal};
+use super::common::{Lookup, SamplingArgs, Source, stderr_is_terminal};
 use crate::check::{CheckOptions, check, fmt_num};
 use crate::codec::search::{Budget, search};
 use crate::codec::{CodecRequest, CodecSpec};
@@ -35,7 +35,7 @@ pub struct PackArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     #[command(flatten)]
-    pub symmetry: SymmetryArgs,
+    pub symmetry: SamplingArgs,
     /// Codec of the file (docs/compression.md); default `lossless` (bit-exact).
     #[arg(long, conflicts_with = "max_error")]
     pub codec: Option<String>,
@@ -75,7 +75,7 @@ struct PackReport {
 pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     a.bounds.validate()?;
     let source = match &a.source {
-        Some(s) => Source::open(s)?,
+        Some(s) => a.symmetry.apply(Source::open(s)?),
         None => Source::Model(Model::default_material()),
     };
     let src = source.into_brdf(Lookup::Linear)?;

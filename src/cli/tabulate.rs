@@ -1,6 +1,6 @@
 //! `brdfpack tabulate`: sample a source onto a grid and write the table.
 
-use super::common::{Lookup, OutputArgs, Source, SymmetryArgs, stderr_is_terminal, write_table};
+use super::common::{Lookup, OutputArgs, SamplingArgs, Source, stderr_is_terminal, write_table};
 use crate::grid::parse_grid_spec;
 use crate::tabulate::tabulate;
 use clap::Args;
@@ -21,7 +21,7 @@ pub struct TabulateArgs {
     #[arg(long, value_enum, default_value_t = Lookup::Linear)]
     pub interp: Lookup,
     #[command(flatten)]
-    pub symmetry: SymmetryArgs,
+    pub symmetry: SamplingArgs,
     /// Convert spectral channels to linear sRGB before writing (CIE 1931 2°, D65; see
     /// docs/spectral.md). An error when the source is not spectral.
     #[arg(long)]
@@ -36,7 +36,10 @@ pub struct TabulateArgs {
 pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
     let grid = parse_grid_spec(&a.grid)?;
     let format = a.out.resolve(&a.output, &grid)?;
-    let src = Source::open(&a.source)?.into_brdf(a.interp)?;
+    let src = a
+        .symmetry
+        .apply(Source::open(&a.source)?)
+        .into_brdf(a.interp)?;
     let t0 = std::time::Instant::now();
     let table = tabulate(
         src.as_ref(),
