@@ -6,7 +6,7 @@
 
 use crate::brdf::Brdf;
 use crate::check::{CheckOptions, SampleSet, check};
-use crate::codec::CodecSpec;
+use crate::codec::{CodecRequest, CodecSpec};
 use crate::grid::{Grid, parse_grid_spec};
 use crate::io::native;
 use crate::model::Model;
@@ -195,13 +195,18 @@ pub struct MatrixOptions {
 }
 
 /// The codecs of the matrix. New codecs (branch `codec`) are added here.
-pub fn bench_codecs(quick: bool) -> Vec<CodecSpec> {
+pub fn bench_codecs(quick: bool) -> Vec<&'static str> {
     if quick {
-        vec![CodecSpec::ZstdF32 { level: 3 }]
+        vec!["lossless", "dct:step=0.05"]
     } else {
         vec![
-            CodecSpec::ZstdF32 { level: 3 },
-            CodecSpec::ZstdF32 { level: 19 },
+            "zstd-f32",
+            "lossless",
+            "f16",
+            "uniform:bits=12",
+            "dct:step=0.01",
+            "dct:step=0.03",
+            "dct:step=0.1",
         ]
     }
 }
@@ -353,8 +358,10 @@ pub fn run_matrix(
             if let Some(e) = err {
                 return Err(e);
             }
-            for codec in &codecs {
-                let row = matrix_row(src, gspec, &table, codec, &tab_t, &lookups, opts)?;
+            for request in &codecs {
+                // Data-derived parameters (scales, ε, colour transform) are fitted per table.
+                let codec = CodecRequest::parse(request)?.resolve(&table)?;
+                let row = matrix_row(src, gspec, &table, &codec, &tab_t, &lookups, opts)?;
                 progress(&row);
                 rows.push(row);
             }
