@@ -356,3 +356,25 @@ fn malformed_merl_files_are_errors_with_exit_code_2() {
     assert_eq!(e.exit_code(), 2);
     assert!(e.to_string().contains("--grid merl"), "{e}");
 }
+
+#[test]
+fn lossy_codecs_drop_exact_values_and_the_file_reads_back() {
+    use brdfpack::codec::CodecRequest;
+    // A MERL-grid table carrying exact f64 values, as read from a MERL file.
+    let m = brdfpack::model::Model::parse("lambert:albedo=0.8/0.5/0.2").unwrap();
+    let grid = brdfpack::grid::Grid::merl();
+    let t = brdfpack::tabulate::tabulate(&m, &grid, &Default::default()).unwrap();
+    let merl = brdfpack::io::merl::to_bytes(&t).unwrap();
+    let with_exact =
+        brdfpack::io::merl::from_bytes(&merl, std::path::Path::new("m.binary")).unwrap();
+    assert!(with_exact.exact().is_some());
+    for (spec, keeps) in [("lossless", true), ("dct:step=0.05", false), ("f16", false)] {
+        let codec = CodecRequest::parse(spec)
+            .unwrap()
+            .resolve(&with_exact)
+            .unwrap();
+        let bytes = brdfpack::io::native::to_bytes(&with_exact, &codec).unwrap();
+        let back = brdfpack::io::native::from_bytes(&bytes, std::path::Path::new("x.bpk")).unwrap();
+        assert_eq!(back.exact().is_some(), keeps, "{spec}");
+    }
+}

@@ -67,6 +67,9 @@ pub enum MaskKind {
 
 /// Encodes a table into the native format's bytes.
 pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
+    // Exact f64 values describe the f32 samples bit for bit; a lossy codec changes those
+    // samples, so the exact values cannot travel with it (they would contradict the data).
+    let exact = table.exact().filter(|_| codec.is_lossless());
     let geometric = table.grid().geometric_mask();
     let mask = if geometric == table.valid() {
         MaskKind::Geometric
@@ -81,7 +84,7 @@ pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
         codec: codec.clone(),
         mask,
         valid_cells: table.valid_count(),
-        exact: table.exact().map(|e| ExactDesc::new(&e.scale)),
+        exact: exact.map(|e| ExactDesc::new(&e.scale)),
     };
     let head = serde_json::to_vec_pretty(&header)
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
@@ -98,7 +101,7 @@ pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
             .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
         sections.push((*b"MASK", z));
     }
-    let minor = match table.exact() {
+    let minor = match exact {
         Some(e) => {
             let mut raw = Vec::with_capacity(e.raw.len() * 8);
             for v in &e.raw {
