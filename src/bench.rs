@@ -286,10 +286,11 @@ pub fn matrix_sources(opts: &MatrixOptions) -> Result<Vec<MatrixSource>> {
         let take = if opts.quick { 1 } else { files.len() };
         for f in files.into_iter().take(take) {
             let b = crate::io::rgl::RglBsdf::open(&f)?;
-            let grids = if b.is_isotropic() {
-                own(&iso_grids[..iso_grids.len().min(2)])
+            // Measured data are not reciprocal: no φd fold (halfdiff3 refuses them).
+            let grids = if opts.quick {
+                own(&["spherical3:16x16x32"])
             } else {
-                own(&aniso_grids[..1])
+                own(&["spherical3:32x32x32", "spherical3:64x64x64"])
             };
             out.push(MatrixSource {
                 name: f
@@ -298,6 +299,30 @@ pub fn matrix_sources(opts: &MatrixOptions) -> Result<Vec<MatrixSource>> {
                 brdf: Box::new(b),
                 grids,
             });
+        }
+        // The MERL-format materials, on their own grid (the table reproduces itself there).
+        if !opts.quick {
+            let mut merl: Vec<_> = std::fs::read_dir(dir.join("merl"))
+                .map(|d| {
+                    d.filter_map(|e| e.ok().map(|e| e.path()))
+                        .filter(|p| p.extension().is_some_and(|x| x == "binary"))
+                        .collect()
+                })
+                .unwrap_or_default();
+            merl.sort();
+            for f in merl {
+                let table = crate::io::read_table(&f)?.without_exact();
+                out.push(MatrixSource {
+                    name: f
+                        .file_stem()
+                        .map_or("merl".into(), |s| s.to_string_lossy().into_owned()),
+                    brdf: Box::new(crate::table::InterpolatedTable {
+                        table,
+                        interp: crate::table::Interp::Linear,
+                    }),
+                    grids: own(&["merl"]),
+                });
+            }
         }
     }
     Ok(out)
