@@ -509,6 +509,26 @@ fn csv_field(s: &str) -> String {
     }
 }
 
+/// Pareto flags computed within each source (comparing codecs and grids of one material;
+/// a front across materials would only say which material is easiest).
+pub fn pareto_by_source(rows: &[MatrixRow], x: impl Fn(&MatrixRow) -> f64) -> Vec<bool> {
+    let mut out = vec![false; rows.len()];
+    let mut names: Vec<&str> = rows.iter().map(|r| r.source.as_str()).collect();
+    names.sort_unstable();
+    names.dedup();
+    for n in names {
+        let idx: Vec<usize> = (0..rows.len()).filter(|&i| rows[i].source == n).collect();
+        let pts: Vec<(f64, f64)> = idx
+            .iter()
+            .map(|&i| (x(&rows[i]), plot_error(&rows[i])))
+            .collect();
+        for (k, f) in pareto_front(&pts).into_iter().enumerate() {
+            out[idx[k]] = f;
+        }
+    }
+    out
+}
+
 /// The error on the plots' y axes and the Pareto fronts: log_rmse (metrics.md), floored so
 /// that lossless-exact rows still have a place on a log axis.
 fn plot_error(r: &MatrixRow) -> f64 {
@@ -517,18 +537,8 @@ fn plot_error(r: &MatrixRow) -> f64 {
 
 /// `bench.csv`: one line per row, header [`CSV_COLUMNS`].
 pub fn to_csv(rows: &[MatrixRow]) -> String {
-    let fb = pareto_front(
-        &rows
-            .iter()
-            .map(|r| (r.bytes as f64, plot_error(r)))
-            .collect::<Vec<_>>(),
-    );
-    let fl = pareto_front(
-        &rows
-            .iter()
-            .map(|r| (r.lookup_s, plot_error(r)))
-            .collect::<Vec<_>>(),
-    );
+    let fb = pareto_by_source(rows, |r| r.bytes as f64);
+    let fl = pareto_by_source(rows, |r| r.lookup_s);
     let mut s = CSV_COLUMNS.join(",");
     s.push('\n');
     for (i, r) in rows.iter().enumerate() {
@@ -597,12 +607,7 @@ pub fn to_markdown(machine: &Machine, speed: &[SpeedResult], rows: &[MatrixRow])
         s.push('\n');
     }
     if !rows.is_empty() {
-        let fb = pareto_front(
-            &rows
-                .iter()
-                .map(|r| (r.bytes as f64, plot_error(r)))
-                .collect::<Vec<_>>(),
-        );
+        let fb = pareto_by_source(rows, |r| r.bytes as f64);
         let _ = writeln!(
             s,
             "| source | grid | codec | bytes | bits/sample | ratio | tabulate | encode | decode | lookups/s | log_rmse | rel_rmse | max_rel | Pareto (bytes) |"
@@ -635,8 +640,8 @@ pub fn to_markdown(machine: &Machine, speed: &[SpeedResult], rows: &[MatrixRow])
     s
 }
 
-/// An SVG scatter plot (log–log) of `plot_error` against `x` of every row, the Pareto front
-/// drawn as a line through its points.
+/// An SVG scatter plot (log–log) of `plot_error` against `x` of every row, one colour per
+/// source, each source's Pareto front drawn as a line through its (circled) points.
 pub fn to_svg(
     rows: &[MatrixRow],
     x: impl Fn(&MatrixRow) -> f64,
@@ -648,7 +653,7 @@ pub fn to_svg(
         .iter()
         .map(|r| (x(r).max(1e-300), plot_error(r)))
         .collect();
-    let front = pareto_front(&pts);
+    let front = pareto_by_source(rows, |r| x(r).max(1e-300));
     let bounds = |v: &mut dyn Iterator<Item = f64>| {
         let (lo, hi) = v.fold((f64::INFINITY, 0f64), |(a, b), x| (a.min(x), b.max(x)));
         if lo.is_finite() && hi > 0.0 {
@@ -665,7 +670,10 @@ pub fn to_svg(
         let e = |e: &dyn std::fmt::Display| Error::Failure(format!("plot {title}: {e}"));
         root.fill(&WHITE).map_err(|x| e(&x))?;
         let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 20))
+            .caption(
+                format!("{title} (circled and joined: each source's Pareto front)"),
+                ("sans-serif", 18),
+            )
             .margin(15)
             .x_label_area_size(45)
             .y_label_area_size(70)
@@ -675,48 +683,54 @@ pub fn to_svg(
             .configure_mesh()
             .x_desc(x_label)
             .y_desc("log_rmse (uniform set)")
+            .x_label_formatter(&|v| format!("{v:.0e}"))
+            .y_label_formatter(&|v| format!("{v:.0e}"))
             .draw()
             .map_err(|x| e(&x))?;
-        let mut fp: Vec<(f64, f64)> = pts
-            .iter()
-            .zip(&front)
-            .filter(|(_, f)| **f)
-            .map(|(p, _)| *p)
-            .collect();
-        fp.sort_by(|a, b| a.0.total_cmp(&b.0));
-        chart
-            .draw_series(LineSeries::new(fp.clone(), RED.stroke_width(2)))
-            .map_err(|x| e(&x))?
-            .label("Pareto front")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        let palette = [BLUE, GREEN, MAGENTA, CYAN, BLACK, RGBColor(200, 120, 0)];
-        let mut names: Vec<&str> = rows.iter().map(|r| r.source.as_str()).collect();
-        names.dedup();
-        let mut seen = Vec::new();
-        for n in names {
-            if seen.contains(&n) {
-                continue;
+        let palette = [
+            RGBColor(31, 119, 180),
+            RGBColor(255, 127, 14),
+            RGBColor(44, 160, 44),
+            RGBColor(214, 39, 40),
+            RGBColor(148, 103, 189),
+            RGBColor(140, 86, 75),
+            RGBColor(227, 119, 194),
+            RGBColor(127, 127, 127),
+            RGBColor(188, 189, 34),
+            RGBColor(23, 190, 207),
+        ];
+        let mut seen: Vec<&str> = Vec::new();
+        for r in rows {
+            if !seen.contains(&r.source.as_str()) {
+                seen.push(r.source.as_str());
             }
-            seen.push(n);
-            let col = palette[(seen.len() - 1) % palette.len()];
-            let series: Vec<(f64, f64)> = rows
+        }
+        for (k, n) in seen.iter().enumerate() {
+            let col = palette[k % palette.len()];
+            let mine: Vec<usize> = (0..rows.len()).filter(|&i| rows[i].source == *n).collect();
+            let series: Vec<(f64, f64)> = mine.iter().map(|&i| pts[i]).collect();
+            // This source's Pareto front: a line through its undominated points, circled.
+            let mut fp: Vec<(f64, f64)> = mine
                 .iter()
-                .zip(&pts)
-                .filter(|(r, _)| r.source == n)
-                .map(|(_, p)| *p)
+                .filter(|&&i| front[i])
+                .map(|&i| pts[i])
                 .collect();
+            fp.sort_by(|a, b| a.0.total_cmp(&b.0));
+            chart
+                .draw_series(LineSeries::new(fp.clone(), col.stroke_width(1)))
+                .map_err(|x| e(&x))?;
+            chart
+                .draw_series(
+                    fp.into_iter()
+                        .map(|p| Circle::new(p, 7, col.stroke_width(2))),
+                )
+                .map_err(|x| e(&x))?;
             chart
                 .draw_series(series.into_iter().map(|p| Circle::new(p, 4, col.filled())))
                 .map_err(|x| e(&x))?
-                .label(n)
+                .label(*n)
                 .legend(move |(x, y)| Circle::new((x + 10, y), 4, col.filled()));
         }
-        chart
-            .draw_series(
-                fp.into_iter()
-                    .map(|p| Circle::new(p, 7, RED.stroke_width(2))),
-            )
-            .map_err(|x| e(&x))?;
         chart
             .configure_series_labels()
             .border_style(BLACK)
