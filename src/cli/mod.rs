@@ -26,30 +26,31 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
-    #[command(long_about = eval::LONG_ABOUT)]
-    Eval(eval::EvalArgs),
+    /// The whole job: tabulate, encode, write, read back and check; prints sizes, times, errors.
+    Pack(pack::PackArgs),
     /// Sample a model (or table) onto a grid and write the table.
     Tabulate(tabulate::TabulateArgs),
     /// Measure a table's error against a reference (exit 1 when a --max-* bound is exceeded).
     Check(check::CheckArgs),
-    /// The whole job: tabulate, encode, write, read back and check; prints sizes, times, errors.
-    Pack(pack::PackArgs),
-    /// Benchmarks: speed of tabulation and lookups, and a matrix of sources × grids × codecs
-    /// with sizes, times and errors (CSV, JSON, Markdown, SVG).
-    Bench(bench::BenchArgs),
-    /// List the analytic models with their parameters, defaults, ranges and properties.
-    Models(models::ModelsArgs),
+    /// Re-encode a table with a codec, or the smallest codec meeting an error budget.
+    Compress(compress::CompressArgs),
+    /// Convert a table (native .bpk, brdfpack .exr, MERL .binary), an RGL file or a model to
+    /// another format or grid; re-grids by interpolation when the grid changes.
+    Convert(convert::ConvertArgs),
+    /// Describe a file: format, grid, channels, provenance, value statistics, invalid and
+    /// negative counts (tables; RGL files too).
+    Inspect(inspect::InspectArgs),
+    /// Evaluate a model or table at direction pairs (one pair, or a stream on stdin).
+    #[command(long_about = eval::LONG_ABOUT)]
+    Eval(eval::EvalArgs),
     /// Report positivity, reciprocity, isotropy and directional albedo of a model or table.
     #[command(long_about = props::LONG_ABOUT)]
     Props(props::PropsArgs),
-    /// Convert a table (native .bpk, brdfpack .exr, MERL .binary) or a model to another
-    /// format or grid; re-grids by interpolation when the grid changes.
-    Convert(convert::ConvertArgs),
-    /// Describe a table file: format, grid, channels, provenance, value statistics.
-    Inspect(inspect::InspectArgs),
-    /// Re-encode a table with a codec, or the smallest codec meeting an error budget.
-    Compress(compress::CompressArgs),
+    /// List the analytic models with their parameters, defaults, ranges and properties.
+    Models(models::ModelsArgs),
+    /// Benchmarks: speed of tabulation and lookups, and a matrix of sources × grids × codecs
+    /// with sizes, times and errors (CSV, JSON, Markdown, SVG).
+    Bench(bench::BenchArgs),
 }
 
 /// Runs the CLI and returns the process exit code.

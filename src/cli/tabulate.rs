@@ -8,13 +8,14 @@ use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct TabulateArgs {
-    /// Model spec (e.g. `ggx:alpha=0.2,fresnel=au`, JSON, @file.json) or table file.
+    /// Model spec (e.g. `ggx:alpha=0.2,fresnel=au`, JSON, @file.json), table file (.bpk, .exr,
+    /// MERL .binary) or RGL .bsdf file.
     pub source: String,
     /// Grid: `merl` or KIND:DIMS[,warp=..][,at=center|edge][,theta-max=DEG]
     /// (KIND spherical4|spherical3|halfdiff3|halfdiff4; see docs/parameterizations.md).
     #[arg(long, default_value = "merl")]
     pub grid: String,
-    /// Output file (`-` for stdout, with --format).
+    /// Output file (`-` for stdout: native format unless --format says otherwise).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Interpolation when the source is a table.
