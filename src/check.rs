@@ -409,8 +409,27 @@ pub fn check(
         uniform,
         others,
         worst_other,
-        albedo_err: None,
+        albedo_err: opts.all_sets.then(|| albedo_error(reference, candidate)),
     })
+}
+
+/// max over the 16 incidence angles of `props::albedo_angles_deg` (at φi = 0) and over
+/// channels of |a_g(θi) − a_f(θi)|, both albedos by the same quadrature (docs/props.md).
+pub fn albedo_error(reference: &dyn Brdf, candidate: &dyn Brdf) -> f64 {
+    crate::props::albedo_angles_deg()
+        .par_iter()
+        .map(|deg| {
+            let t = deg.to_radians();
+            let a = crate::props::directional_albedo(reference, t);
+            let b = crate::props::directional_albedo(candidate, t);
+            a.iter()
+                .zip(&b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max)
+        })
+        .collect::<Vec<f64>>()
+        .into_iter()
+        .fold(0.0, f64::max)
 }
 
 /// Per metric, the larger of two.
@@ -569,6 +588,14 @@ mod tests {
             assert_eq!(m.get(name), Some(0.0), "{name}");
         }
         assert_eq!(r.worst_other.unwrap().rmse, 0.0);
+    }
+
+    #[test]
+    fn albedo_error_of_a_constant_offset_is_pi_times_it() {
+        // a(θi) = ∫ f cos θo dωo = π f for a constant f: an offset of 0.05 gives 0.05 π.
+        let e = albedo_error(&konst(0.3), &konst(0.35));
+        assert!((e - 0.05 * PI).abs() < 1e-6, "{e}");
+        assert_eq!(albedo_error(&konst(0.3), &konst(0.3)), 0.0);
     }
 
     #[test]

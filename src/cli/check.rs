@@ -25,6 +25,9 @@ pub struct Bounds {
     /// Fail when p99_rel_core exceeds this.
     #[arg(long, value_name = "X", help_heading = "Bounds")]
     pub max_p99_rel_core: Option<f64>,
+    /// Fail when albedo_err (max |Δ directional albedo| over 16 θi) exceeds this.
+    #[arg(long, value_name = "X", help_heading = "Bounds")]
+    pub max_albedo_err: Option<f64>,
 }
 
 impl Bounds {
@@ -36,6 +39,7 @@ impl Bounds {
             ("max_abs", self.max_max_abs),
             ("rel_rmse_core", self.max_rel_rmse_core),
             ("p99_rel_core", self.max_p99_rel_core),
+            ("albedo_err", self.max_albedo_err),
         ]
         .into_iter()
         .filter_map(|(n, v)| v.map(|v| (n, v)))

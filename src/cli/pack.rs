@@ -219,6 +219,13 @@ fn human(r: &PackReport) -> String {
             None => writeln!(s, "{name:<13} {v}"),
         };
     }
+    if let Some(a) = r.check.albedo_err {
+        let _ = writeln!(
+            s,
+            "albedo_err    {}  (max |Δ directional albedo| over 16 θi)",
+            fmt_num(Some(a))
+        );
+    }
     if !r.bounds_exceeded.is_empty() {
         let _ = writeln!(s, "verdict       FAIL ({})", r.bounds_exceeded.join("; "));
     }
