@@ -1,21 +1,15 @@
 //! HTSG (He et al. 1991) against reference values, plus continuity, reciprocity and
 //! robustness sweeps. See docs/htsg.md for the figures these tests produce.
 
+mod common;
+
 use brdfpack::geometry::Vec3;
 use brdfpack::math::{PI, SplitMix64};
 use brdfpack::model::htsg::{Htsg, HtsgParams};
 use serde_json::Value;
 use std::path::PathBuf;
 
-/// `BRDFPACK_SHARED`, else `<manifest>/../shared`, else `/work/shared`; None when absent.
-fn shared_dir() -> Option<PathBuf> {
-    let candidates = [
-        std::env::var_os("BRDFPACK_SHARED").map(PathBuf::from),
-        Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared")),
-        Some(PathBuf::from("/work/shared")),
-    ];
-    candidates.into_iter().flatten().find(|p| p.is_dir())
-}
+use common::shared_dir;
 
 fn fixture_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

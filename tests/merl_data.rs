@@ -2,6 +2,8 @@
 //! values, and every route back to MERL (direct, native, EXR f32) reproduces the file byte
 //! for byte. Skipped, with a printed reason, when ../shared is absent.
 
+mod common;
+
 use brdfpack::brdf::Brdf;
 use brdfpack::codec::CodecSpec;
 use brdfpack::geometry::HalfDiff;
@@ -11,15 +13,7 @@ use brdfpack::io::{self, Format, OutputFormat};
 use brdfpack::math::PI;
 use std::path::{Path, PathBuf};
 
-/// ../shared: `BRDFPACK_SHARED`, else `<crate>/../shared`, else `/work/shared`.
-fn shared_dir() -> Option<PathBuf> {
-    let candidates = [
-        std::env::var_os("BRDFPACK_SHARED").map(PathBuf::from),
-        Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared")),
-        Some(PathBuf::from("/work/shared")),
-    ];
-    candidates.into_iter().flatten().find(|p| p.is_dir())
-}
+use common::shared_dir;
 
 /// The MERL files, or `None` (after printing why) when the data are absent.
 fn merl_files(test: &str) -> Option<Vec<PathBuf>> {

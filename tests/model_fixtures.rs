@@ -2,24 +2,15 @@
 //! independent implementations) and the project's own `fixtures/models` (from
 //! `fixtures/models/make.py`, a straightforward Python transcription of the spec).
 
+mod common;
+
 use brdfpack::brdf::Brdf;
 use brdfpack::geometry::Vec3;
 use brdfpack::model::Model;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
-/// The shared reference directory: $BRDFPACK_SHARED, else ../shared, else /work/shared.
-fn shared_dir() -> Option<PathBuf> {
-    if let Ok(p) = std::env::var("BRDFPACK_SHARED") {
-        return Some(PathBuf::from(p));
-    }
-    let sibling = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    if sibling.is_dir() {
-        return Some(sibling);
-    }
-    let fixed = PathBuf::from("/work/shared");
-    fixed.is_dir().then_some(fixed)
-}
+use common::shared_dir;
 
 fn vec3(v: &Value) -> Vec3 {
     let a = v.as_array().expect("direction array");

@@ -6,11 +6,12 @@
 //! implementation reached 7.6e-4 on it, Mitsuba's own LLVM variant 6.0e-4; float32 rounding of
 //! steep interpolants in Mitsuba explains the rest, so 1e-3 is the bound.
 
+mod common;
+
 use brdfpack::brdf::Brdf;
 use brdfpack::geometry::Vec3;
 use brdfpack::io::rgl::RglBsdf;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 
 const MATERIALS: [&str; 4] = [
     "cc_ibiza_sunset_rgb",
@@ -20,18 +21,7 @@ const MATERIALS: [&str; 4] = [
 ];
 const MAX_ERR: f64 = 1e-3;
 
-/// `BRDFPACK_SHARED`, else `<manifest>/../shared`, else `/work/shared`; `None` when absent.
-fn shared_dir() -> Option<PathBuf> {
-    let candidates = [
-        std::env::var_os("BRDFPACK_SHARED").map(PathBuf::from),
-        Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared")),
-        Some(PathBuf::from("/work/shared")),
-    ];
-    candidates
-        .into_iter()
-        .flatten()
-        .find(|p| p.join("fixtures/rgl").is_dir() && p.join("data/rgl").is_dir())
-}
+use common::shared_dir;
 
 struct Line {
     wi: Vec3,

@@ -7,7 +7,8 @@ use std::path::{Path, PathBuf};
 /// `None` in a user's clone, where tests that need it print a reason and pass.
 pub fn shared_dir() -> Option<PathBuf> {
     if let Ok(p) = std::env::var("BRDFPACK_SHARED") {
-        return Some(PathBuf::from(p));
+        // Set but absent: skip like a user's clone, rather than fail on missing files.
+        return Some(PathBuf::from(p)).filter(|p| p.is_dir());
     }
     let sibling = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
     sibling.is_dir().then_some(sibling)
