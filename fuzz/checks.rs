@@ -128,8 +128,11 @@ pub fn native_framed(data: &[u8]) {
     native(&frame_native(data));
 }
 
+/// One fuzz target's check: panics when the library breaks a promise on `data`.
+pub type Check = fn(&[u8]);
+
 /// Every target by its directory name under `fuzz/corpus/`.
-pub const TARGETS: [(&str, fn(&[u8])); 6] = [
+pub const TARGETS: [(&str, Check); 6] = [
     ("native", native),
     ("native_framed", native_framed),
     ("merl", merl),
