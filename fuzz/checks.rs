@@ -128,7 +128,7 @@ pub fn native_framed(data: &[u8]) {
     native(&frame_native(data));
 }
 
-/// A fuzz entry point: arbitrary bytes in, panics on a violated property.
+/// One fuzz target's check: panics when the library breaks a promise on `data`.
 pub type Check = fn(&[u8]);
 
 /// Every target by its directory name under `fuzz/corpus/`.
