@@ -48,7 +48,11 @@ impl Source {
         match Model::parse(spec) {
             Ok(m) => Ok(Source::Model(m)),
             // A name that looks like a file but is none: say so rather than "unknown model".
-            Err(_) if io::FormatName::from_path(path).is_some() || spec.contains('/') => {
+            Err(_)
+                if !spec.starts_with('@')
+                    && !spec.starts_with('{')
+                    && (io::FormatName::from_path(path).is_some() || spec.contains('/')) =>
+            {
                 Err(Error::io(
                     path,
                     std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),

@@ -88,13 +88,7 @@ pub struct CheckArgs {
 
 pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
     a.bounds.validate()?;
-    if a.samples == 0 || a.samples > 100_000_000 {
-        return Err(crate::Error::input(format!(
-            "--samples {} is out of range [1, 100000000]",
-            a.samples
-        ))
-        .into());
-    }
+    validate_samples(a.samples)?;
     let cand = Source::open(&a.candidate)?;
     let cells = match &cand {
         Source::Table(t) => Some((t.grid().clone(), t.valid().to_vec())),
@@ -140,4 +134,14 @@ pub fn verdict(report: &crate::check::CheckReport, bounds: &Bounds) -> Vec<Strin
             (v > max).then(|| format!("{name} = {v:.4e} > {max}"))
         })
         .collect()
+}
+
+/// `--samples` must be in [1, 10^8] (a sample set is held in memory).
+pub fn validate_samples(n: usize) -> crate::Result<()> {
+    if n == 0 || n > 100_000_000 {
+        return Err(crate::Error::input(format!(
+            "--samples {n} is out of range [1, 100000000]"
+        )));
+    }
+    Ok(())
 }

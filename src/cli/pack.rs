@@ -74,6 +74,7 @@ struct PackReport {
 
 pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     a.bounds.validate()?;
+    super::check::validate_samples(a.samples)?;
     let source = match &a.source {
         Some(s) => a.symmetry.apply(Source::open(s)?),
         None => Source::Model(Model::default_material()),
