@@ -119,16 +119,30 @@ pub struct Coefficients {
     pub codes: Vec<i32>,
 }
 
+/// Largest |code| of a quantized coefficient.
+pub const MAX_CODE: f64 = (1u32 << 30) as f64;
+
+/// Ok when every coefficient of `coef` quantizes with `step` within ±2^30 levels; the error
+/// names the coefficient and the step. [`quantize`] clamps codes at that limit, which the
+/// budget search tolerates (it measures the result), but an encoder must refuse: a linear
+/// DCT of a table with 8e10 peaks at step 0.05 decoded to an RMS error of 3e10
+/// (tests/hard_cases.rs).
+pub fn check_range(coef: &[f64], step: f64) -> Result<()> {
+    match coef.iter().find(|c| !((*c / step).abs() <= MAX_CODE)) {
+        None => Ok(()),
+        Some(c) => Err(Error::input(format!(
+            "dct: coefficient {c:e} / step {step:e} exceeds 2^30 levels; use a larger step \
+             or the log curve"
+        ))),
+    }
+}
+
 /// Quantizes a coefficient plane with `step` and keeps the smallest box holding every nonzero.
 pub fn quantize(coef: &[f64], dims: &[usize], step: f64) -> Coefficients {
     let d = dims.len();
     let q: Vec<i32> = coef
         .iter()
-        .map(|c| {
-            (c / step)
-                .round()
-                .clamp(-(1 << 30) as f64, (1 << 30) as f64) as i32
-        })
+        .map(|c| (c / step).round().clamp(-MAX_CODE, MAX_CODE) as i32)
         .collect();
     let mut extent = vec![0usize; d];
     let mut idx = vec![0usize; d];

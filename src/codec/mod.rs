@@ -263,6 +263,9 @@ impl CodecSpec {
                 ..
             } => {
                 let coefs = dct_coefficients(table, transform)?;
+                for (p, &s) in coefs.iter().zip(&stage.step) {
+                    dct::check_range(p, s)?;
+                }
                 let comps: Vec<_> = coefs
                     .iter()
                     .zip(&stage.step)

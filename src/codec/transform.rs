@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "curve", rename_all = "snake_case")]
 pub enum Curve {
-    /// y = x.
+    /// y = x. Lossy codecs drop negative values here too (decoded values are clamped at 0).
     Linear,
     /// y = ln(ε_c + max(x, 0)): errors in y are relative errors of ε_c + x, so dark and bright
     /// regions get the same relative precision above ε_c. Lossy codecs drop negative values
@@ -39,7 +39,9 @@ impl Curve {
     #[inline]
     pub fn inverse(&self, y: f64, ch: usize) -> f64 {
         match self {
-            Curve::Linear => y,
+            // Clamp: a BRDF is ≥ 0, but quantization through the colour matrix or DCT ringing
+            // decoded a GGX α = 5e-4 table to −172 next to its 1e9 peak (tests/hard_cases.rs).
+            Curve::Linear => y.max(0.0),
             // Clamp: quantization error may push a value just below 0.
             Curve::Log { eps } => (y.exp() - eps[ch]).max(0.0),
         }
@@ -48,7 +50,8 @@ impl Curve {
     #[inline]
     pub fn inverse_f32(&self, y: f32, ch: usize) -> f32 {
         match self {
-            Curve::Linear => y,
+            // Clamp at 0 as in `inverse`.
+            Curve::Linear => y.max(0.0),
             Curve::Log { eps } => (y.exp() - eps[ch] as f32).max(0.0),
         }
     }

@@ -4,7 +4,7 @@ use super::finite_large;
 use super::params::{ModelDecl, ParamDecl, ParamReader, broadcast, channel_json};
 use crate::Result;
 use crate::brdf::Channels;
-use crate::geometry::Vec3;
+use crate::geometry::{Vec3, half_vector, one_minus_cos_theta_d};
 use crate::math::{PI, pow_0_0_is_1, sqr};
 use serde_json::{Value, json};
 
@@ -88,12 +88,12 @@ impl AshikhminShirley {
 
     #[inline]
     pub(crate) fn eval_channels(&self, wi: Vec3, wo: Vec3, first: usize, out: &mut [f64]) {
-        let Some(h) = (wi + wo).try_normalize() else {
+        // k = wi·h = wo·h = cos θd, the same number both ways round (reciprocity at grazing).
+        let Some((h, k)) = half_vector(wi, wo) else {
             // wi = −wo: no half vector.
             out.fill(0.0);
             return;
         };
-        let k = wi.dot(h);
         // 1 − h.z² as h.x² + h.y² (no cancellation); 0 at the normal, where e is 0/0 but
         // h.z = 1 makes h.z^e = 1 for any e.
         let sin2_h = h.sin2_theta();
@@ -111,7 +111,9 @@ impl AshikhminShirley {
             // One division at a time: k max(c_i, c_o) can underflow at grazing opposite pairs.
             finite_large(norm * pow_0_0_is_1(h.z, e) / k / wi.z.max(wo.z))
         };
-        let one_minus_k5 = (1.0 - k).powi(5);
+        // 1 − k without cancellation: k rounds to just above 1 near retro-reflection, and
+        // (1 − k)⁵ then made F (and f with rs = 0) negative.
+        let one_minus_k5 = one_minus_cos_theta_d(wi, wo, k).powi(5);
         // Eq. 5: the diffuse term's angular factor.
         let diffuse_angular =
             (1.0 - (1.0 - wi.z / 2.0).powi(5)) * (1.0 - (1.0 - wo.z / 2.0).powi(5));

@@ -19,12 +19,15 @@ pub fn fresnel_schlick(f0: f64, cos_theta: f64) -> f64 {
 #[inline]
 pub fn fresnel_dielectric(eta: f64, cos_theta: f64) -> f64 {
     let c = cos_theta;
-    let g2 = sqr(eta) - 1.0 + sqr(c);
+    let e = sqr(eta) - 1.0;
+    let g2 = e + sqr(c);
     // g² < 0: no transmitted wave exists (total internal reflection, η < 1).
     if g2 < 0.0 {
         return 1.0;
     }
-    let g = g2.sqrt();
+    // η = 1: g = c exactly (F = 0); sqrt(c²) gave g = 0 and F = 1 once c² underflowed
+    // (c < 1e-162, within 1e-162 rad of the horizon).
+    let g = if e == 0.0 { c } else { g2.sqrt() };
     // c(g − c) + 1 ≥ 1 − c² > 0 and g + c > 0 for c > 0 and η > 0: no division by zero.
     0.5 * sqr((g - c) / (g + c)) * (1.0 + sqr((c * (g + c) - 1.0) / (c * (g - c) + 1.0)))
 }
@@ -39,8 +42,16 @@ pub fn fresnel_conductor(eta: f64, k: f64, cos_theta: f64) -> f64 {
     let s2 = 1.0 - c2;
     let eta2 = sqr(eta);
     let k2 = sqr(k);
-    let t = eta2 - k2 - s2;
     let four_eta2_k2 = 4.0 * eta2 * k2;
+    // η + ik = 1 (the outside medium itself): F = 0 at every angle. The general form below
+    // degenerates to 0/0 (c < 1e-162, where c² underflows) or to −0.17 (c < 1e-77, where
+    // t² = c⁴ underflows) near the horizon.
+    let e = eta2 - k2 - 1.0;
+    if e == 0.0 && four_eta2_k2 == 0.0 {
+        return 0.0;
+    }
+    // t = η² − k² − s² as (η² − k² − 1) + c²: no cancellation of 1 − c² near the normal.
+    let t = e + c2;
     let big_a = (sqr(t) + four_eta2_k2).sqrt();
     // a² = (A + t)/2; for t < 0 (k ≫ η) A + t cancels, so use (A² − t²)/(2(A − t)) = 2η²k²/(A − t).
     let a2 = if t >= 0.0 {

@@ -7,7 +7,7 @@ use super::params::{
     Alias, ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast, channel_json,
 };
 use crate::brdf::Channels;
-use crate::geometry::Vec3;
+use crate::geometry::{Vec3, half_vector};
 use crate::math::{PI, erfc, sqr};
 use crate::{Error, Result};
 use serde_json::{Value, json};
@@ -167,6 +167,19 @@ pub fn v_cavity_g(wi: Vec3, wo: Vec3, h: Vec3, cos_i_h: f64, cos_o_h: f64) -> f6
     1.0f64.min(g_o).min(g_i)
 }
 
+/// D · G/(k c_i c_o) for the microfacet and Torrance–Sparrow models, with k their constant
+/// (4 or π). G is divided by the cosines before D multiplies it: near the horizon G is as
+/// small as c (1e-300) and D · G went subnormal (losing digits, so f(wi, wo) ≠ f(wo, wi)),
+/// while G/c stays of order 1. Dividing by the larger cosine first makes the result
+/// exactly symmetric in c_i and c_o. D = 0 gives 0 even where G/(c_i c_o) overflows.
+#[inline]
+pub(crate) fn d_times_g_over_cosines(d: f64, g: f64, k: f64, c_i: f64, c_o: f64) -> f64 {
+    if d == 0.0 {
+        return 0.0;
+    }
+    d * (g / (k * c_i.max(c_o)) / c_i.min(c_o))
+}
+
 /// Masking–shadowing G(wi, wo).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Shadowing {
@@ -200,7 +213,8 @@ impl Shadowing {
         cos_o_h: f64,
     ) -> f64 {
         match self {
-            Shadowing::SmithCorrelated => 1.0 / (1.0 + dist.lambda(wi) + dist.lambda(wo)),
+            // Λ(wi) + Λ(wo) summed first: the same rounding for (wi, wo) and (wo, wi).
+            Shadowing::SmithCorrelated => 1.0 / (1.0 + (dist.lambda(wi) + dist.lambda(wo))),
             Shadowing::SmithSeparable => dist.g1(wi) * dist.g1(wo),
             Shadowing::VCavity => v_cavity_g(wi, wo, h, cos_i_h, cos_o_h),
         }
@@ -414,28 +428,25 @@ impl Microfacet {
     /// Channels `first..first + out.len()`; requires wi.z > 0 and wo.z > 0.
     #[inline]
     pub(crate) fn eval_channels(&self, wi: Vec3, wo: Vec3, first: usize, out: &mut [f64]) {
-        let Some(h) = (wi + wo).try_normalize() else {
+        // wi·h = wo·h = cos θd, the same number both ways round (reciprocity at grazing).
+        let Some((h, cos_d)) = half_vector(wi, wo) else {
             // wi = −wo: no half vector (cannot happen above the horizon; kept for safety).
             out.fill(0.0);
             return;
         };
-        let cos_i_h = wi.dot(h);
-        let cos_o_h = wo.dot(h);
         // G = 0 when a direction sees the back of the microfacet (spec: wi·h ≤ 0 or wo·h ≤ 0).
-        if cos_i_h <= 0.0 || cos_o_h <= 0.0 {
+        if cos_d <= 0.0 {
             out.fill(0.0);
             return;
         }
         let d = self.distribution.d(h);
         let g = self
             .shadowing
-            .g(&self.distribution, wi, wo, h, cos_i_h, cos_o_h);
-        // Divide by c_i and c_o one at a time: their product underflows for directions within
-        // ~1e-160 of the horizon, where the quotient itself is still representable.
-        let dg = finite_large(d * g / (4.0 * wi.z) / wo.z);
+            .g(&self.distribution, wi, wo, h, cos_d, cos_d);
+        let dg = finite_large(d_times_g_over_cosines(d, g, 4.0, wi.z, wo.z));
         for (j, o) in out.iter_mut().enumerate() {
             let ch = first + j;
-            *o = finite_large(self.scale[ch] * self.fresnel.eval(cos_i_h, ch) * dg);
+            *o = finite_large(self.scale[ch] * self.fresnel.eval(cos_d, ch) * dg);
         }
     }
 }

@@ -2,13 +2,13 @@
 
 use super::finite_large;
 use super::fresnel::Fresnel;
-use super::microfacet::v_cavity_g;
+use super::microfacet::{d_times_g_over_cosines, v_cavity_g};
 use super::params::{
     ModelDecl, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast, channel_json,
 };
 use crate::Result;
 use crate::brdf::Channels;
-use crate::geometry::Vec3;
+use crate::geometry::{Vec3, half_vector};
 use crate::math::{PI, sqr};
 use serde_json::{Value, json};
 
@@ -83,15 +83,14 @@ impl TorranceSparrow {
 
     #[inline]
     pub(crate) fn eval_channels(&self, wi: Vec3, wo: Vec3, first: usize, out: &mut [f64]) {
-        let Some(h) = (wi + wo).try_normalize() else {
+        // wi·h = wo·h = cos θd, the same number both ways round (reciprocity at grazing).
+        let Some((h, cos_d)) = half_vector(wi, wo) else {
             // wi = −wo: no half vector.
             out.fill(0.0);
             return;
         };
-        let cos_i_h = wi.dot(h);
-        let cos_o_h = wo.dot(h);
         // Back-facing microfacet (rounding only, above the horizon): G = 0.
-        if cos_i_h <= 0.0 || cos_o_h <= 0.0 {
+        if cos_d <= 0.0 {
             out.fill(0.0);
             return;
         }
@@ -103,12 +102,11 @@ impl TorranceSparrow {
         } else {
             falloff / (4.0 * sqr(self.m)) / sqr(h.z) / sqr(h.z)
         };
-        let g = v_cavity_g(wi, wo, h, cos_i_h, cos_o_h);
-        // One division at a time: c_i c_o underflows within ~1e-160 of the horizon.
-        let dg = finite_large(d * g / (PI * wi.z) / wo.z);
+        let g = v_cavity_g(wi, wo, h, cos_d, cos_d);
+        let dg = finite_large(d_times_g_over_cosines(d, g, PI, wi.z, wo.z));
         for (j, o) in out.iter_mut().enumerate() {
             let ch = first + j;
-            *o = finite_large(self.scale[ch] * self.fresnel.eval(cos_i_h, ch) * dg);
+            *o = finite_large(self.scale[ch] * self.fresnel.eval(cos_d, ch) * dg);
         }
     }
 }
