@@ -21,7 +21,7 @@ use brdfpack::io::merl::MerlLookup;
 use brdfpack::io::rgl::RglBsdf;
 use brdfpack::io::{self, OutputFormat};
 use brdfpack::math::{FRAC_PI_2, PI};
-use brdfpack::model::fresnel::{FRESNEL_TYPES, METALS};
+use brdfpack::model::fresnel::{FRESNEL_TYPES, METALS, fresnel_conductor, fresnel_dielectric};
 use brdfpack::model::{CATALOG, Model, ParamKind};
 use brdfpack::table::{Interp, Provenance, Table};
 use brdfpack::tabulate::{TabulateOptions, tabulate};
@@ -71,6 +71,7 @@ const MODEL_CASES: &[&str] = &[
     "ggx:alpha=1e-4,shadowing=v-cavity,fresnel=dielectric,ior=1e6",
     "ggx:alpha=0.3,fresnel=conductor,eta=0,k=0",
     "ggx:alpha=0.3,fresnel=conductor,eta=1.5,k=0",
+    "torrance-sparrow:m=1e-6,fresnel=conductor,eta=1,k=0",
     "ggx:alpha=0.3,fresnel=conductor,eta=1e-3,k=1e6",
     "ggx:alpha=0.3,fresnel=conductor,eta=1e6,k=1e6,scale=1e6",
     "ggx:alpha=0.2,fresnel=schlick,f0=0/0.5/1",
@@ -560,6 +561,39 @@ fn models_are_continuous_across_phi_seams() {
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn index_matched_fresnel_is_zero_at_every_angle() {
+    // IOR exactly 1 (hard-cases.md): F = 0 at every c > 0, also where c² and c⁴ underflow
+    // (the conductor form gave 0/0 = NaN at c = 5e-324 and −0.17 below c ≈ 1e-77).
+    for c in [1.0, 0.5, 1e-9, 1e-80, 1e-100, 1e-170, 1e-300, 5e-324] {
+        assert_eq!(fresnel_dielectric(1.0, c), 0.0, "dielectric at c = {c}");
+        assert_eq!(fresnel_conductor(1.0, 0.0, c), 0.0, "conductor at c = {c}");
+        // Any other index tends to 1 at grazing, stays in [0, 1] and is finite.
+        for (eta, k) in [(1.5, 0.0), (0.67, 0.0), (1e-6, 0.0), (1e6, 0.0)] {
+            let f = fresnel_dielectric(eta, c);
+            assert!((0.0..=1.0).contains(&f), "dielectric {eta} at c = {c}: {f}");
+            let f = fresnel_conductor(eta, k, c);
+            assert!(
+                (0.0..=1.0).contains(&f),
+                "conductor {eta}, {k} at c = {c}: {f}"
+            );
+        }
+        for (eta, k) in [
+            (0.143, 3.983),
+            (1e-3, 1e6),
+            (1e6, 1e6),
+            (0.0, 0.0),
+            (1.0, 1e-9),
+        ] {
+            let f = fresnel_conductor(eta, k, c);
+            assert!(
+                (0.0..=1.0).contains(&f),
+                "conductor {eta}, {k} at c = {c}: {f}"
+            );
+        }
+    }
 }
 
 #[test]
