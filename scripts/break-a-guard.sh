@@ -117,6 +117,7 @@ if ! grep -q '^failures:' "$log"; then
 fi
 echo "== failing tests:"
 awk '/^failures:$/ {n++} n == 2 && /^    / {print}' "$log"
-echo "== first lines of their messages:"
-grep -E -A2 "^thread '.*' .*panicked at" "$log" | grep -vE '^(--|stack backtrace:)$' | cut -c1-300 | head -40
+echo "== their messages (first lines, repeats dropped):"
+awk '/^---- .* stdout ----$/ {p = 8}
+     p > 0 && !/^(stack backtrace:|note: |$)/ && !seen[$0]++ {print; p--}' "$log" | cut -c1-300
 echo "break-a-guard: caught: the suite fails without the '$guard' guard"

@@ -489,8 +489,14 @@ fn every_model_at_every_hard_pair() {
             "{spec}: models.md says every model is reciprocal"
         );
         for (label, wi, wo, below) in &pairs {
-            let a = eval(&m, *wi, *wo);
-            let b = eval(&m, *wo, *wi);
+            // A panic (a debug assertion on NaN, say) is reported with its model and pair.
+            let both = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                (eval(&m, *wi, *wo), eval(&m, *wo, *wi))
+            }));
+            let Ok((a, b)) = both else {
+                failures.push(format!("{spec} [{label}]: panicked (see above)"));
+                continue;
+            };
             evaluated += 2;
             for (c, (x, y)) in a.iter().zip(&b).enumerate() {
                 if !(x.is_finite() && *x >= 0.0) {

@@ -128,7 +128,11 @@ pub const MAX_CODE: f64 = (1u32 << 30) as f64;
 /// DCT of a table with 8e10 peaks at step 0.05 decoded to an RMS error of 3e10
 /// (tests/hard_cases.rs).
 pub fn check_range(coef: &[f64], step: f64) -> Result<()> {
-    match coef.iter().find(|c| !((*c / step).abs() <= MAX_CODE)) {
+    let out_of_range = |c: &&f64| {
+        let q = (**c / step).abs();
+        q.is_nan() || q > MAX_CODE
+    };
+    match coef.iter().find(out_of_range) {
         None => Ok(()),
         Some(c) => Err(Error::input(format!(
             "dct: coefficient {c:e} / step {step:e} exceeds 2^30 levels; use a larger step \
