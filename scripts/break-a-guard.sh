@@ -102,7 +102,7 @@ fi
 log="$work/$guard.log"
 start=$(date +%s)
 set +e
-(cd "$tree" && cargo test --test hard_cases 2>&1) >"$log"
+(cd "$tree" && RUST_BACKTRACE=0 cargo test --test hard_cases 2>&1) >"$log"
 rc=$?
 set -e
 echo "== cargo test --test hard_cases: exit $rc after $(( $(date +%s) - start )) s (log: $log)"
@@ -118,6 +118,7 @@ fi
 echo "== failing tests:"
 awk '/^failures:$/ {n++} n == 2 && /^    / {print}' "$log"
 echo "== their messages (first lines, repeats dropped):"
-awk '/^---- .* stdout ----$/ {p = 8}
-     p > 0 && !/^(stack backtrace:|note: |$)/ && !seen[$0]++ {print; p--}' "$log" | cut -c1-300
+awk '/^---- .* stdout ----$/ {p = 12}
+     p > 0 && !/^(stack backtrace:|note: |proptest: |$)/ && !seen[$0]++ {print; p--}' "$log" |
+  cut -c1-300
 echo "break-a-guard: caught: the suite fails without the '$guard' guard"
