@@ -212,8 +212,9 @@ fn unit(v: [f64; 3], name: &str) -> std::result::Result<Vec3, String> {
     if !v.is_finite() {
         return Err(format!("{name} has a NaN or infinite component"));
     }
-    // Divided by the largest magnitude first: the squared length of 1e200 overflows and that
-    // of 1e-162 is a subnormal with a few bits left, which would give no or a non-unit result.
+    // Divided by the largest magnitude first: the squared length of 1e200 overflows, that of
+    // 1e-162 underflows to 0 and that of 3e-162 is a subnormal with a few bits left, which
+    // would refuse a valid direction or return one 5% short of unit length.
     let m = v.x.abs().max(v.y.abs()).max(v.z.abs());
     Vec3::new(v.x / m, v.y / m, v.z / m)
         .try_normalize()
@@ -487,6 +488,7 @@ mod tests {
         for v in [
             [1e200, 0.0, 1e200],
             [1e-162, 0.0, 1e-162],
+            [3e-162, 0.0, 3e-162],
             [5e-324, 0.0, 5e-324],
             [f64::MAX, 0.0, f64::MAX],
         ] {
