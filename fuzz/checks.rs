@@ -5,7 +5,7 @@
 
 use brdfpack::brdf::Brdf;
 use brdfpack::geometry::Vec3;
-use brdfpack::table::{Interp, Table};
+use brdfpack::table::{Interp, InterpolatedTable, Table};
 use std::path::Path;
 
 /// Fixed (wi, wo) pairs as (θi, φi, θo, φo) in radians: normal, grazing, retro, mirror,
@@ -128,15 +128,225 @@ pub fn native_framed(data: &[u8]) {
     native(&frame_native(data));
 }
 
+/// A GGX gold conductor (3 channels, values over several decades) tabulated on a small
+/// halfdiff3 grid: the table the `codec` and `eval` targets work on (built once).
+pub fn small_table() -> &'static Table {
+    static TABLE: std::sync::OnceLock<Table> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let m = brdfpack::model::Model::parse("ggx:alpha=0.15,fresnel=au").expect("GGX spec");
+        let g = brdfpack::grid::parse_grid_spec("halfdiff3:6x6x8,warp=sqrt/linear/linear")
+            .expect("grid spec");
+        brdfpack::tabulate::tabulate(&m, &g, &Default::default()).expect("GGX tabulates")
+    })
+}
+
+/// The `eval` stream parser (`brdfpack eval SOURCE < pairs`) on arbitrary text. The first
+/// byte picks the input form, output form, `--echo` and the source (the GGX model or its
+/// table); the rest is the stream. Asserted: an error is an input error (exit 2); every
+/// output number is finite; rows have the channel count (+6 echoed components, which are
+/// unit vectors).
+pub fn eval(data: &[u8]) {
+    use brdfpack::cli::{EvalInputFormat as In, EvalOutputFormat as Out, eval_stream_text};
+    let Some((&mode, rest)) = data.split_first() else {
+        return;
+    };
+    let Ok(text) = std::str::from_utf8(rest) else {
+        return;
+    };
+    let form = [In::Auto, In::Text, In::Csv, In::Jsonl][(mode & 3) as usize];
+    let format = [Out::Text, Out::Csv, Out::Jsonl][((mode >> 2) & 3) as usize % 3];
+    let echo = mode & 0x10 != 0;
+    static MODEL: std::sync::OnceLock<brdfpack::model::Model> = std::sync::OnceLock::new();
+    let model = MODEL.get_or_init(|| {
+        brdfpack::model::Model::parse("ggx:alpha=0.15,fresnel=au").expect("GGX spec")
+    });
+    static TABLE: std::sync::OnceLock<InterpolatedTable> = std::sync::OnceLock::new();
+    let table = TABLE.get_or_init(|| InterpolatedTable {
+        table: small_table().clone(),
+        interp: Interp::Linear,
+    });
+    let brdf: &dyn Brdf = if mode & 0x20 != 0 { table } else { model };
+    let out = match eval_stream_text(brdf, text, form, format, echo) {
+        Ok(out) => out,
+        Err(e) => {
+            assert_eq!(e.exit_code(), 2, "eval: error {e} is not an input error");
+            return;
+        }
+    };
+    let width = brdf.channels().len() + if echo { 6 } else { 0 };
+    let mut lines = out.lines();
+    if format == Out::Csv {
+        let header = lines.next().expect("csv output starts with a header");
+        assert_eq!(
+            header.split(',').count(),
+            width,
+            "eval: csv header {header:?}"
+        );
+    }
+    for line in lines {
+        let fields: Vec<&str> = match format {
+            Out::Text => line.split(' ').collect(),
+            Out::Csv => line.split(',').collect(),
+            Out::Jsonl => line
+                .split(|c: char| "{}[],:".contains(c))
+                .filter(|f| !f.is_empty() && !f.starts_with('"'))
+                .collect(),
+        };
+        assert_eq!(fields.len(), width, "eval: row {line:?}");
+        let v: Vec<f64> = fields
+            .iter()
+            .map(|f| {
+                let x: f64 = f
+                    .parse()
+                    .unwrap_or_else(|_| panic!("eval: {f:?} in {line:?} is not a number"));
+                assert!(x.is_finite(), "eval: {x} in row {line:?}");
+                x
+            })
+            .collect();
+        if echo {
+            for w in [&v[0..3], &v[3..6]] {
+                let len = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+                assert!((len - 1.0).abs() < 1e-12, "eval: echoed {w:?} in {line:?}");
+            }
+        }
+    }
+}
+
+/// Grid spec strings (`--grid`): a grid that parses has finite sample angles inside each
+/// axis range whose continuous index maps back to the sample index, finite unit directions
+/// and non-negative cell measures, and the same grid after its header description.
+pub fn grid(data: &[u8]) {
+    let Ok(spec) = std::str::from_utf8(data) else {
+        return;
+    };
+    let Ok(g) = brdfpack::grid::parse_grid_spec(spec) else {
+        return;
+    };
+    let back = brdfpack::grid::Grid::from_desc(&g.desc())
+        .unwrap_or_else(|e| panic!("grid {spec:?}: its own description fails: {e}"));
+    assert_eq!(back, g, "grid {spec:?}: description round trip");
+    for a in g.axes() {
+        let (lo, hi) = a.range();
+        assert!(
+            lo.is_finite() && hi.is_finite() && lo < hi,
+            "grid {spec:?}: {lo}..{hi}"
+        );
+        for i in [0, 1, a.n / 2, a.n - 1] {
+            let i = i.min(a.n - 1);
+            let x = a.sample(i);
+            assert!(
+                x.is_finite() && lo <= x && x <= hi,
+                "grid {spec:?}: sample {i} = {x}"
+            );
+            let ci = a.continuous_index(x);
+            assert!(
+                (ci - i as f64).abs() <= 1e-6,
+                "grid {spec:?}: axis {:?} index {i} -> {x} -> {ci}",
+                a.quantity
+            );
+        }
+    }
+    let cells = g.cells();
+    let mut idx = vec![0; g.axes().len()];
+    for flat in [0, cells / 3, cells / 2, cells - 1] {
+        g.unflatten(flat, &mut idx);
+        for (k, a) in g.axes().iter().enumerate() {
+            assert!(idx[k] < a.n, "grid {spec:?}: cell {flat} -> {idx:?}");
+        }
+        let (wi, wo) = g.cell_dirs(&idx);
+        for w in [wi, wo] {
+            assert!(
+                w.is_finite() && (w.length() - 1.0).abs() < 1e-12,
+                "grid {spec:?}: cell {idx:?} direction {w:?}"
+            );
+        }
+        let m = g.cell_measure(&idx);
+        assert!(
+            m.is_finite() && m >= 0.0,
+            "grid {spec:?}: cell {idx:?} measure {m}"
+        );
+        if let Some(c) = g.coords_of(wi, wo) {
+            for (k, a) in g.axes().iter().enumerate() {
+                let (lo, hi) = a.range();
+                let slack = 1e-9 * (hi - lo);
+                assert!(
+                    c[k].is_finite() && c[k] >= lo - slack && c[k] <= hi + slack,
+                    "grid {spec:?}: cell {idx:?} coordinate {k} = {}",
+                    c[k]
+                );
+            }
+        }
+    }
+}
+
+/// Codec request strings (`--codec`): a request that parses prints as a spec that parses back
+/// to it, resolves for the small table, encodes it (an error only for a predictor whose
+/// orders do not match the grid's 3 axes) and decodes its own payload to finite values, bit
+/// for bit for the lossless codecs and 0 in invalid cells. zstd runs at level ≤ 3 here.
+pub fn codec(data: &[u8]) {
+    use brdfpack::codec::{CodecRequest, Layout};
+    let Ok(spec) = std::str::from_utf8(data) else {
+        return;
+    };
+    let Ok(req) = CodecRequest::parse(spec) else {
+        return;
+    };
+    let text = req.to_string();
+    let again = CodecRequest::parse(&text)
+        .unwrap_or_else(|e| panic!("codec {spec:?}: its text {text:?} fails: {e}"));
+    assert_eq!(again, req, "codec {spec:?}: text {text:?}");
+    let level = req.level().min(3);
+    let req = req.with_level(level);
+    let t = small_table();
+    let resolved = req
+        .resolve(t)
+        .unwrap_or_else(|e| panic!("codec {spec:?}: resolve fails: {e}"));
+    let payload = match resolved.encode(t) {
+        Ok(p) => p,
+        Err(e) => {
+            let wrong_orders = matches!(&req, CodecRequest::Lossless { predict: Some(p), .. }
+                if p.orders.len() != t.grid().axes().len());
+            assert!(wrong_orders, "codec {spec:?}: encode fails: {e}");
+            return;
+        }
+    };
+    let decoded = resolved
+        .decode(&payload, &Layout::of(t))
+        .unwrap_or_else(|e| panic!("codec {spec:?}: own payload fails to decode: {e}"));
+    assert_eq!(decoded.len(), t.data().len(), "codec {spec:?}");
+    let c = t.channels().len();
+    for (cell, &ok) in t.valid().iter().enumerate() {
+        for k in 0..c {
+            let (a, b) = (decoded[cell * c + k], t.data()[cell * c + k]);
+            assert!(a.is_finite(), "codec {spec:?}: cell {cell} decodes to {a}");
+            if !ok {
+                assert_eq!(a, 0.0, "codec {spec:?}: invalid cell {cell}");
+            } else if resolved.is_lossless() {
+                assert_eq!(a.to_bits(), b.to_bits(), "codec {spec:?}: cell {cell}");
+            }
+        }
+    }
+    assert_eq!(
+        resolved.is_lossless(),
+        matches!(
+            req,
+            CodecRequest::ZstdF32 { .. } | CodecRequest::Lossless { .. }
+        )
+    );
+}
+
 /// One fuzz target's check: panics when the library breaks a promise on `data`.
 pub type Check = fn(&[u8]);
 
 /// Every target by its directory name under `fuzz/corpus/`.
-pub const TARGETS: [(&str, Check); 6] = [
+pub const TARGETS: [(&str, Check); 9] = [
     ("native", native),
     ("native_framed", native_framed),
     ("merl", merl),
     ("exr", exr),
     ("rgl", rgl),
     ("model", model),
+    ("eval", eval),
+    ("grid", grid),
+    ("codec", codec),
 ];

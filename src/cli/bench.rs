@@ -89,7 +89,7 @@ fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
             r.items_per_s
         );
         if a.json {
-            println!("{}", serde_json::to_string(r)?);
+            outln!("{}", serde_json::to_string(r)?);
         }
     }
     if speed_only {

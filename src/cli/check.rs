@@ -110,15 +110,15 @@ pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
     if a.json {
         let mut v = serde_json::to_value(&report)?;
         v["bounds_exceeded"] = serde_json::json!(failed);
-        println!("{v}");
+        outln!("{v}");
     } else {
-        print!("{}", report.to_table());
+        out!("{}", report.to_table());
         if a.bounds.list().is_empty() {
-            println!("verdict: no bounds given");
+            outln!("verdict: no bounds given");
         } else if failed.is_empty() {
-            println!("verdict: pass (all bounds met)");
+            outln!("verdict: pass (all bounds met)");
         } else {
-            println!("verdict: FAIL ({})", failed.join("; "));
+            outln!("verdict: FAIL ({})", failed.join("; "));
         }
     }
     Ok(if failed.is_empty() { 0 } else { 1 })

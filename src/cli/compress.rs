@@ -97,22 +97,30 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
     atomic::write_output(&a.output, &bytes)?;
     let raw = table.data().len() * 4;
     let m = &measured.metrics;
-    println!("codec: {}", measured.spec.summary());
-    println!("preserves: {}", measured.spec.preserves());
-    println!(
+    outln!("codec: {}", measured.spec.summary());
+    outln!("preserves: {}", measured.spec.preserves());
+    outln!(
         "size: {} bytes file ({} payload), {:.4} bits/stored sample, {:.1}× smaller than raw f32 ({raw} bytes)",
         bytes.len(),
         measured.payload.len(),
         8.0 * bytes.len() as f64 / table.data().len() as f64,
         raw as f64 / bytes.len() as f64
     );
-    println!(
+    outln!(
         "error vs the input table (both interpolated linearly), uniform set, {} pairs, seed {}, ε = {:.3e}:",
-        a.samples, a.seed, m.epsilon
+        a.samples,
+        a.seed,
+        m.epsilon
     );
-    println!(
+    outln!(
         "  log_rmse {:.4e}  p99_rel_core {:.4e}  rel_rmse_core {:.4e}  rmse {:.4e}  max_rel {:.4e}  nonfinite {}  negative {}",
-        m.log_rmse, m.p99_rel_core, m.rel_rmse_core, m.rmse, m.max_rel, m.nonfinite, m.negative
+        m.log_rmse,
+        m.p99_rel_core,
+        m.rel_rmse_core,
+        m.rmse,
+        m.max_rel,
+        m.nonfinite,
+        m.negative
     );
     Ok(0)
 }

@@ -144,11 +144,11 @@ pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
         Some((wi, wo)) => writer
             .header(&mut out)
             .and_then(|_| writer.row(&mut out, wi, wo))
-            .map_err(anyhow::Error::from),
+            .map_err(super::stdout_error),
         None => eval_stream(&writer, std::io::stdin().lock(), &mut out, args.input),
     };
     // Rows before a bad line are flushed before its error is reported (streaming).
-    let flushed = out.flush().map_err(anyhow::Error::from);
+    let flushed = out.flush().map_err(super::stdout_error);
     result?;
     flushed?;
     Ok(0)
@@ -212,6 +212,7 @@ fn unit(v: [f64; 3], name: &str) -> std::result::Result<Vec3, String> {
     if !v.is_finite() {
         return Err(format!("{name} has a NaN or infinite component"));
     }
+    // `try_normalize` scales by the largest component first, so 1e200 and 3e-162 are valid.
     v.try_normalize()
         .ok_or_else(|| format!("{name} has zero length (expected a direction)"))
 }
@@ -286,14 +287,32 @@ fn check_count(n: usize, sep: &str) -> std::result::Result<(), String> {
     }
 }
 
+/// `brdfpack eval`'s stream processing on a whole text instead of stdin: the same line
+/// parser and row writer ([`eval_stream`]), with the rows returned as a string. An error
+/// (the first bad line) discards the rows before it. For the fuzzer and tests.
+#[doc(hidden)]
+pub fn eval_stream_text(
+    brdf: &dyn Brdf,
+    input: &str,
+    form: InputFormat,
+    format: OutputFormat,
+    echo: bool,
+) -> Result<String> {
+    let writer = RowWriter::new(brdf, format, echo);
+    let mut out = Vec::new();
+    eval_stream(&writer, input.as_bytes(), &mut out, form)?;
+    String::from_utf8(out).map_err(|e| Error::Failure(format!("eval output is not UTF-8: {e}")))
+}
+
 /// Reads pairs from `input` line by line and writes one row per pair: constant memory.
+/// A failed write is reported as a failure of `<stdout>` (the CLI's only output).
 fn eval_stream<R: BufRead, W: Write>(
     writer: &RowWriter,
     mut input: R,
     out: &mut W,
     form: InputFormat,
-) -> anyhow::Result<()> {
-    writer.header(out)?;
+) -> Result<()> {
+    writer.header(out).map_err(super::stdout_error)?;
     let mut buf = Vec::new();
     let mut line_no = 0usize;
     loop {
@@ -315,19 +334,19 @@ fn eval_stream<R: BufRead, W: Write>(
             ))
         };
         if buf.len() > MAX_LINE_BYTES {
-            return Err(bad(format!("longer than {MAX_LINE_BYTES} bytes"), &buf).into());
+            return Err(bad(format!("longer than {MAX_LINE_BYTES} bytes"), &buf));
         }
         let Ok(text) = std::str::from_utf8(&buf) else {
-            return Err(bad("not UTF-8 text".into(), &buf).into());
+            return Err(bad("not UTF-8 text".into(), &buf));
         };
         let line = text.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
         match parse_line(line, form) {
-            Ok(Some((wi, wo))) => writer.row(out, wi, wo)?,
+            Ok(Some((wi, wo))) => writer.row(out, wi, wo).map_err(super::stdout_error)?,
             Ok(None) => {}
-            Err(msg) => return Err(bad(msg, line.as_bytes()).into()),
+            Err(msg) => return Err(bad(msg, line.as_bytes())),
         }
     }
 }
@@ -456,6 +475,51 @@ mod tests {
         let (out, err) = run_stream(&long, InputFormat::Text);
         assert!(out.is_empty());
         assert!(err.unwrap().contains("longer than"));
+    }
+
+    #[test]
+    fn huge_and_tiny_vectors_normalize_to_unit_length() {
+        let want = unit([1.0, 0.0, 1.0], "wi").unwrap().to_array();
+        for v in [
+            [1e200, 0.0, 1e200],
+            [1e-162, 0.0, 1e-162],
+            [3e-162, 0.0, 3e-162],
+            [5e-324, 0.0, 5e-324],
+            [f64::MAX, 0.0, f64::MAX],
+        ] {
+            let u = unit(v, "wi").unwrap().to_array();
+            for k in 0..3 {
+                assert!((u[k] - want[k]).abs() <= 1e-15, "{v:?}: {u:?} vs {want:?}");
+            }
+        }
+        assert!(unit([0.0, -0.0, 0.0], "wi").is_err());
+    }
+
+    #[test]
+    fn text_entry_point_matches_the_stream() {
+        let brdf = crate::source::open_brdf("lambert:albedo=0.5").unwrap();
+        let out = eval_stream_text(
+            &*brdf,
+            "wix,wiy,wiz,wox,woy,woz\n0,0,2,0,0,1\n",
+            InputFormat::Auto,
+            OutputFormat::Csv,
+            true,
+        )
+        .unwrap();
+        let v = 0.5 / std::f64::consts::PI;
+        assert_eq!(
+            out,
+            format!("wix,wiy,wiz,wox,woy,woz,Y\n0.0,0.0,1.0,0.0,0.0,1.0,{v:?}\n")
+        );
+        let e = eval_stream_text(
+            &*brdf,
+            "1 2 3\n",
+            InputFormat::Auto,
+            OutputFormat::Text,
+            false,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("line 1: 3 columns"), "{e}");
     }
 
     #[test]

@@ -101,19 +101,19 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
         let rgl = crate::io::rgl::RglBsdf::from_bytes(&bytes, &a.file.display().to_string())?;
         let info = rgl.info();
         if a.json {
-            println!(
+            outln!(
                 "{}",
                 serde_json::json!({"file": a.file.display().to_string(), "format": "rgl",
                     "bytes": bytes.len(), "table": false, "rgl": info})
             );
         } else {
-            println!("file: {}", a.file.display());
-            println!(
+            outln!("file: {}", a.file.display());
+            outln!(
                 "format: rgl ({} bytes; a measured BRDF, not a table)",
                 bytes.len()
             );
-            println!("description: {}", info.description);
-            println!(
+            outln!("description: {}", info.description);
+            outln!(
                 "resolution: {}x{} samples per slice, {} θi slices, {} φi slice(s), VNDF {}x{}",
                 info.resolution[0],
                 info.resolution[1],
@@ -122,11 +122,13 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
                 info.vndf_resolution[0],
                 info.vndf_resolution[1]
             );
-            println!(
+            outln!(
                 "values: {} entries per channel, range {:e} .. {:e}",
-                info.entries_per_channel, info.value_range[0], info.value_range[1]
+                info.entries_per_channel,
+                info.value_range[0],
+                info.value_range[1]
             );
-            println!(
+            outln!(
                 "negative entries per channel: {:?} (passed through by eval, as the reference \
                  does; --clamp-negative clamps them)",
                 info.negative_counts
@@ -154,31 +156,36 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
         stats,
     };
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        outln!("{}", serde_json::to_string_pretty(&r)?);
         return Ok(0);
     }
-    println!("file: {}", r.file);
-    println!("format: {} ({} bytes)", r.format, r.bytes);
-    println!("grid: {}", r.grid);
-    println!("channels: {}", r.channels.join(" "));
-    println!("source: {}", r.source);
-    println!("tool: {}", r.tool);
+    outln!("file: {}", r.file);
+    outln!("format: {} ({} bytes)", r.format, r.bytes);
+    outln!("grid: {}", r.grid);
+    outln!("channels: {}", r.channels.join(" "));
+    outln!("source: {}", r.source);
+    outln!("tool: {}", r.tool);
     for n in &r.notes {
-        println!("note: {n}");
+        outln!("note: {n}");
     }
-    println!(
+    outln!(
         "cells: {} (valid {}, invalid {})",
-        r.cells, r.valid_cells, r.invalid_cells
+        r.cells,
+        r.valid_cells,
+        r.invalid_cells
     );
-    println!("negative values in valid cells: {}", r.negative_values);
-    println!(
+    outln!("negative values in valid cells: {}", r.negative_values);
+    outln!(
         "exact f64 values: {}",
         if r.exact_f64 { "yes" } else { "no" }
     );
     for s in &r.stats {
-        println!(
+        outln!(
             "channel {}: min {:.6e} max {:.6e} mean {:.6e} (1/sr)",
-            s.name, s.min, s.max, s.mean
+            s.name,
+            s.min,
+            s.max,
+            s.mean
         );
     }
     Ok(0)

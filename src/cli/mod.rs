@@ -4,6 +4,25 @@
 use clap::{Parser, Subcommand};
 use std::io::Write;
 
+/// `print!` that returns a write failure (full disk, closed pipe) as an error naming
+/// `<stdout>` instead of panicking as `print!` does; use inside a function returning a
+/// `Result` whose error converts from [`crate::Error`].
+macro_rules! out {
+    ($($arg:tt)*) => {
+        $crate::cli::write_stdout(format_args!($($arg)*), false)?
+    };
+}
+
+/// `println!` with the error handling of [`out!`].
+macro_rules! outln {
+    () => {
+        $crate::cli::write_stdout(format_args!(""), true)?
+    };
+    ($($arg:tt)*) => {
+        $crate::cli::write_stdout(format_args!($($arg)*), true)?
+    };
+}
+
 mod bench;
 mod check;
 mod common;
@@ -15,6 +34,11 @@ mod models;
 mod pack;
 mod props;
 mod tabulate;
+
+#[doc(hidden)]
+pub use eval::{
+    InputFormat as EvalInputFormat, OutputFormat as EvalOutputFormat, eval_stream_text,
+};
 
 /// brdfpack: turn BRDFs into compact tables and back.
 #[derive(Parser, Debug)]
@@ -53,6 +77,26 @@ enum Command {
     Bench(bench::BenchArgs),
 }
 
+/// Writes to stdout (line-buffered by std); an I/O error is returned naming `<stdout>`.
+#[doc(hidden)]
+pub fn write_stdout(args: std::fmt::Arguments, newline: bool) -> crate::Result<()> {
+    let mut out = std::io::stdout().lock();
+    out.write_fmt(args)
+        .and_then(|_| {
+            if newline {
+                out.write_all(b"\n")
+            } else {
+                Ok(())
+            }
+        })
+        .map_err(stdout_error)
+}
+
+/// An I/O error on stdout, as the library's error naming `<stdout>`.
+pub(crate) fn stdout_error(e: std::io::Error) -> crate::Error {
+    crate::Error::io("<stdout>", e)
+}
+
 /// Runs the CLI and returns the process exit code.
 pub fn main() -> i32 {
     let cli = match Cli::try_parse() {
@@ -75,6 +119,12 @@ pub fn main() -> i32 {
         Command::Compress(a) => compress::run(a),
         Command::Bench(a) => bench::run(a),
     };
+    // Whatever is still buffered (a `print!` without a newline) is written now, so that
+    // its failure is reported too: std ignores errors of the flush at exit.
+    let result = result.and_then(|code| {
+        std::io::stdout().flush().map_err(stdout_error)?;
+        Ok(code)
+    });
     match result {
         Ok(code) => code,
         Err(e) => report_error(&e),
@@ -98,12 +148,16 @@ fn report_error(e: &anyhow::Error) -> i32 {
                 .map(|e| e.exit_code())
         })
         .unwrap_or(1);
-    let mut stderr = std::io::stderr().lock();
-    let _ = write!(stderr, "brdfpack: {e}");
+    let mut msg = e.to_string();
     for cause in e.chain().skip(1) {
-        let _ = write!(stderr, ": {cause}");
+        let cause = cause.to_string();
+        // An error that prints its source (`{path}: {source}`) has said it already.
+        if !msg.ends_with(&cause) {
+            msg.push_str(": ");
+            msg.push_str(&cause);
+        }
     }
-    let _ = writeln!(stderr);
+    let _ = writeln!(std::io::stderr().lock(), "brdfpack: {msg}");
     code
 }
 

@@ -40,6 +40,9 @@ pub fn run(args: ModelsArgs) -> anyhow::Result<i32> {
     } else {
         listing::catalog_text(decls)
     };
-    std::io::stdout().lock().write_all(text.as_bytes())?;
+    let mut out = std::io::stdout().lock();
+    out.write_all(text.as_bytes())
+        .and_then(|_| out.flush())
+        .map_err(super::stdout_error)?;
     Ok(0)
 }

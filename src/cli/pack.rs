@@ -151,7 +151,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         if to_stderr {
             eprint!("{out}");
         } else {
-            print!("{out}");
+            out!("{out}");
         }
     } else if !failed.is_empty() {
         eprintln!("brdfpack: bounds exceeded: {}", failed.join("; "));

@@ -45,14 +45,18 @@ pub fn run(args: PropsArgs) -> anyhow::Result<i32> {
         samples: args.samples as usize,
     };
     let report = props(&*brdf, &options);
-    let mut out = std::io::stdout().lock();
+    // Formatted in memory (a few KB), so that a failing stdout is one error naming it.
+    let mut text = Vec::new();
     if args.json {
-        serde_json::to_writer_pretty(&mut out, &report)?;
-        writeln!(out)?;
+        serde_json::to_writer_pretty(&mut text, &report)?;
+        writeln!(text)?;
     } else {
-        write_table(&mut out, &report)?;
+        write_table(&mut text, &report)?;
     }
-    out.flush()?;
+    let mut out = std::io::stdout().lock();
+    out.write_all(&text)
+        .and_then(|_| out.flush())
+        .map_err(super::stdout_error)?;
     Ok(if report.failures.is_empty() { 0 } else { 1 })
 }
 

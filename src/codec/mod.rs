@@ -17,6 +17,7 @@ pub mod domain;
 pub mod entropy;
 pub mod predict;
 pub mod quantize;
+mod request_text;
 pub mod search;
 #[doc(hidden)]
 pub mod testdata;

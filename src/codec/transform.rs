@@ -46,14 +46,32 @@ impl Curve {
             Curve::Log { eps } => (y.exp() - eps[ch]).max(0.0),
         }
     }
-    /// f32 inverse for the decoder's hot loop (same formula).
+    /// f32 inverse for the decoder's hot loop (same formula), saturated like [`finite_f32`].
     #[inline]
     pub fn inverse_f32(&self, y: f32, ch: usize) -> f32 {
-        match self {
+        let v = match self {
             // Clamp at 0 as in `inverse`.
             Curve::Linear => y.max(0.0),
             Curve::Log { eps } => (y.exp() - eps[ch] as f32).max(0.0),
+        };
+        if v.is_nan() {
+            0.0
+        } else {
+            v.clamp(-f32::MAX, f32::MAX)
         }
+    }
+}
+
+/// A decoded sample as a finite f32. A valid request can still leave the f32 range on the way
+/// back (`f16:eps=1e300`: ε ≈ 1e299 and the f16 error of ln ε is a factor e^0.25, so
+/// e^z − ε ≈ 3e298), and a hostile header can ask for anything: values beyond it saturate at
+/// ±f32::MAX and a NaN (∞ − ∞) reads as 0, so that a decoder never returns Inf or NaN.
+#[inline]
+pub fn finite_f32(v: f64) -> f32 {
+    if v.is_nan() {
+        0.0
+    } else {
+        v.clamp(-(f32::MAX as f64), f32::MAX as f64) as f32
     }
 }
 
@@ -242,7 +260,7 @@ impl Transform {
             None => y.copy_from_slice(z),
         }
         for (k, o) in out.iter_mut().enumerate() {
-            *o = self.curve.inverse(y[k], k) as f32;
+            *o = finite_f32(self.curve.inverse(y[k], k));
         }
     }
 }
@@ -251,6 +269,25 @@ impl Transform {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn decoded_values_saturate_instead_of_overflowing() {
+        assert_eq!(finite_f32(1e300), f32::MAX);
+        assert_eq!(finite_f32(f64::NEG_INFINITY), -f32::MAX);
+        assert_eq!(finite_f32(f64::NAN), 0.0);
+        assert_eq!(finite_f32(0.25), 0.25);
+        let log = Curve::Log { eps: vec![1e299] };
+        // e^{ln ε + 0.25} − ε ≈ 0.28 ε: beyond f32 in f64, and ∞ − ∞ in f32.
+        let mut out = [0f32];
+        Transform {
+            curve: log.clone(),
+            colour: None,
+        }
+        .inverse_cell(&[1e299f64.ln() + 0.25], &mut [0.0], &mut out);
+        assert_eq!(out[0], f32::MAX);
+        assert_eq!(log.inverse_f32(700.0, 0), 0.0);
+        assert_eq!(Curve::Linear.inverse_f32(f32::INFINITY, 0), f32::MAX);
+    }
 
     #[test]
     fn klt_of_proportional_channels_puts_all_variance_in_one_component() {

@@ -222,6 +222,9 @@ pub struct Grid {
     axes: Vec<Axis>,
     /// Domain limit: cells (and queries) with θi or θo above it are outside the table.
     theta_max: Option<f64>,
+    /// The limit in degrees as given, written to headers as is: rad → deg → rad does not
+    /// always return the same f64, so a re-derived value could read back as another grid.
+    theta_max_deg: Option<f64>,
 }
 
 /// Serialized form of a grid (what headers store): validated on the way in.
@@ -259,13 +262,13 @@ impl Grid {
                 qs.iter().map(|q| q.name()).collect::<Vec<_>>().join(", ")
             )));
         }
-        let theta_max = match theta_max_deg {
+        let theta_max_deg = match theta_max_deg {
             None => None,
             Some(d) if d.is_finite() && d > 0.0 && d <= 90.0 => {
                 if d == 90.0 {
                     None
                 } else {
-                    Some(d.to_radians())
+                    Some(d)
                 }
             }
             Some(d) => {
@@ -274,6 +277,7 @@ impl Grid {
                 )));
             }
         };
+        let theta_max = theta_max_deg.map(f64::to_radians);
         let mut out = Vec::with_capacity(qs.len());
         let mut cells: usize = 1;
         for (&q, &(n, warp, placement)) in qs.iter().zip(axes) {
@@ -319,6 +323,7 @@ impl Grid {
             kind,
             axes: out,
             theta_max,
+            theta_max_deg,
         })
     }
 
@@ -362,7 +367,7 @@ impl Grid {
                     placement: a.placement,
                 })
                 .collect(),
-            theta_max_deg: self.theta_max.map(f64::to_degrees),
+            theta_max_deg: self.theta_max_deg,
         }
     }
 
@@ -405,8 +410,8 @@ impl Grid {
             warps.join("/"),
             placements.join("/")
         );
-        if let Some(t) = self.theta_max {
-            s.push_str(&format!("; theta-max {}°", t.to_degrees()));
+        if let Some(d) = self.theta_max_deg {
+            s.push_str(&format!("; theta-max {d}°"));
         }
         s
     }

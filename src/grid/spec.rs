@@ -123,6 +123,19 @@ mod tests {
     }
 
     #[test]
+    fn theta_max_survives_the_header_description() {
+        // 0.21° → rad → deg gives 0.21000000000000002°, whose radians are an ulp off.
+        let g = parse_grid_spec("spherical3:4,theta-max=0.21").unwrap();
+        assert_eq!(g.desc().theta_max_deg, Some(0.21));
+        assert_eq!(Grid::from_desc(&g.desc()).unwrap(), g);
+        assert!(
+            g.describe().ends_with("theta-max 0.21°"),
+            "{}",
+            g.describe()
+        );
+    }
+
+    #[test]
     fn errors_name_the_problem() {
         for (spec, needle) in [
             ("cube:4", "unknown kind"),

@@ -1,0 +1,142 @@
+//! The text form of a [`CodecRequest`]: `Display` writes the canonical spec that
+//! [`CodecRequest::parse`] reads back to the same request (every option spelled out, numbers
+//! in Rust's shortest round-trip notation), e.g. `dct:step=0.02,curve=log,eps=0.001,colour=klt,level=19`.
+
+use super::predict::{Predictor, Space};
+use super::{CodecRequest, CurveRequest};
+use std::fmt;
+
+impl CodecRequest {
+    /// The zstd level of the entropy stage.
+    pub fn level(&self) -> i32 {
+        match self {
+            CodecRequest::ZstdF32 { level }
+            | CodecRequest::Lossless { level, .. }
+            | CodecRequest::F16 { level, .. }
+            | CodecRequest::Uniform { level, .. }
+            | CodecRequest::Dct { level, .. } => *level,
+        }
+    }
+
+    /// The same request with another zstd level.
+    pub fn with_level(mut self, new: i32) -> CodecRequest {
+        match &mut self {
+            CodecRequest::ZstdF32 { level }
+            | CodecRequest::Lossless { level, .. }
+            | CodecRequest::F16 { level, .. }
+            | CodecRequest::Uniform { level, .. }
+            | CodecRequest::Dct { level, .. } => *level = new,
+        }
+        self
+    }
+}
+
+fn curve(f: &mut fmt::Formatter, c: &CurveRequest) -> fmt::Result {
+    match c {
+        CurveRequest::Linear => write!(f, "curve=linear"),
+        // `{:?}` of an f64 parses back to the same value (`{}` would too, but writes 1e300
+        // with 300 zeros).
+        CurveRequest::Log { eps_rel } => write!(f, "curve=log,eps={eps_rel:?}"),
+    }
+}
+
+fn colour(colour: bool) -> &'static str {
+    if colour { "klt" } else { "none" }
+}
+
+fn predictor(f: &mut fmt::Formatter, p: &Predictor) -> fmt::Result {
+    let orders: Vec<String> = p.orders.iter().map(u8::to_string).collect();
+    let space = match p.space {
+        Space::Float => "float",
+        Space::Integer => "integer",
+    };
+    let cross = if p.cross_channel { "on" } else { "off" };
+    write!(
+        f,
+        "predict={},space={space},cross={cross}",
+        orders.join(".")
+    )
+}
+
+impl fmt::Display for CodecRequest {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        match self {
+            CodecRequest::ZstdF32 { level } => write!(f, "zstd-f32:level={level}"),
+            CodecRequest::Lossless { level, predict } => {
+                write!(f, "lossless:")?;
+                match predict {
+                    None => write!(f, "predict=auto")?,
+                    Some(p) => predictor(f, p)?,
+                }
+                write!(f, ",level={level}")
+            }
+            CodecRequest::F16 { curve: c, level } => {
+                write!(f, "f16:")?;
+                curve(f, c)?;
+                write!(f, ",level={level}")
+            }
+            CodecRequest::Uniform {
+                curve: c,
+                bits,
+                colour: k,
+                level,
+            } => {
+                write!(f, "uniform:bits={bits},")?;
+                curve(f, c)?;
+                write!(f, ",colour={},level={level}", colour(*k))
+            }
+            CodecRequest::Dct {
+                curve: c,
+                step,
+                colour: k,
+                level,
+            } => {
+                write!(f, "dct:step={step:?},")?;
+                curve(f, c)?;
+                write!(f, ",colour={},level={level}", colour(*k))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn display_is_the_canonical_spec_and_parses_back() {
+        for (spec, canonical) in [
+            ("zstd-f32", "zstd-f32:level=19"),
+            ("lossless", "lossless:predict=auto,level=19"),
+            (
+                "lossless:predict=0.1.2,space=integer,cross=off,level=3",
+                "lossless:predict=0.1.2,space=integer,cross=off,level=3",
+            ),
+            ("f16:curve=linear", "f16:curve=linear,level=19"),
+            (
+                "uniform:bits=12,eps=1e-5",
+                "uniform:bits=12,curve=log,eps=1e-5,colour=klt,level=19",
+            ),
+            (
+                "dct: step = 1e300 ,colour=none,level=1",
+                "dct:step=1e300,curve=log,eps=0.001,colour=none,level=1",
+            ),
+        ] {
+            let r = CodecRequest::parse(spec).unwrap();
+            assert_eq!(r.to_string(), canonical, "{spec}");
+            assert_eq!(CodecRequest::parse(canonical).unwrap(), r, "{spec}");
+        }
+    }
+
+    #[test]
+    fn level_can_be_replaced() {
+        let r = CodecRequest::parse("dct:step=0.1,level=19").unwrap();
+        assert_eq!(r.level(), 19);
+        let r = r.with_level(3);
+        assert_eq!(r.level(), 3);
+        assert_eq!(
+            r.to_string(),
+            "dct:step=0.1,curve=log,eps=0.001,colour=klt,level=3"
+        );
+    }
+}
