@@ -400,30 +400,80 @@ impl Table {
         use crate::fast::lookup::BLOCK;
         let c = self.channels.len();
         let nearest = interp == Interp::Nearest;
-        let mut t = [[0f64; 4]; BLOCK];
-        let mut ok = [false; BLOCK];
-        let mut st = Stencil3::default();
-        for (out, p) in out.chunks_mut(BLOCK * c).zip(pairs.chunks(BLOCK)) {
-            let n = p.len();
-            ix.indices(p, &mut t, &mut ok);
-            let (t, ok) = (&t[..n], &ok[..n]);
+        // Software pipeline: the stencils of block k + 1 are computed and their cache lines
+        // prefetched before block k is interpolated, so that misses (a table larger than the
+        // cache, or a cache shared with other processes) overlap the work.
+        let prepare = |p: &[(Vec3, Vec3)], b: &mut Block3| {
+            b.n = p.len();
+            ix.indices(p, &mut b.t, &mut b.ok);
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: `avx2` is only true when the CPU reports AVX2.
+                unsafe { prepare3_avx2(&b.t[..b.n], nearest, layout, &mut b.st) };
+                self.prefetch3(b);
+                return;
+            }
+            prepare3(&b.t[..b.n], nearest, layout, &mut b.st);
+            self.prefetch3(b);
+        };
+        let mut cur = Box::<Block3>::default();
+        let mut next = Box::<Block3>::default();
+        let mut blocks = out
+            .chunks_mut(BLOCK * c)
+            .zip(pairs.chunks(BLOCK))
+            .peekable();
+        if let Some((_, p)) = blocks.peek() {
+            prepare(p, &mut cur);
+        }
+        while let Some((out, _)) = blocks.next() {
+            if let Some((_, p)) = blocks.peek() {
+                prepare(p, &mut next);
+            }
+            let (t, ok, st) = (&cur.t[..cur.n], &cur.ok[..cur.n], &cur.st);
             #[cfg(target_arch = "x86_64")]
             if avx2 {
                 // SAFETY: `avx2` is only true when the CPU reports AVX2.
                 unsafe {
-                    prepare3_avx2(t, nearest, layout, &mut st);
                     if c == 3 {
-                        self.interpolate3_rgb_avx2(t, ok, &st, interp, layout, bits, out);
+                        self.interpolate3_rgb_avx2(t, ok, st, interp, layout, bits, out);
                     } else {
-                        self.interpolate3_avx2(t, ok, &st, interp, layout, bits, out);
+                        self.interpolate3_avx2(t, ok, st, interp, layout, bits, out);
                     }
                 }
+                std::mem::swap(&mut cur, &mut next);
                 continue;
             }
-            let _ = avx2;
-            prepare3(t, nearest, layout, &mut st);
-            self.interpolate3(t, ok, &st, interp, layout, bits, out);
+            self.interpolate3(t, ok, st, interp, layout, bits, out);
+            std::mem::swap(&mut cur, &mut next);
         }
+    }
+
+    /// Hints the cache lines of a block's corners: for the four corners on the two slow
+    /// axes, the cell and its neighbour along the fastest axis (usually the same or the next
+    /// line).
+    #[inline]
+    fn prefetch3(&self, b: &Block3) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let c = self.channels.len();
+            let ptr = self.data.as_ptr();
+            for p in (0..b.n).filter(|&p| b.ok[p]) {
+                let (flats, _) = b.st.corners(p);
+                for pair in [0, 1, 2, 3] {
+                    // Corners `pair` and `pair + 4` differ along the fastest axis only.
+                    let (first, last) = (flats[pair] * c, flats[pair + 4] * c + c - 1);
+                    // SAFETY: both are inside `data` (`Stencil3::corners`); a prefetch is a
+                    // hint and never faults anyway.
+                    unsafe {
+                        _mm_prefetch::<_MM_HINT_T0>(ptr.add(first) as *const i8);
+                        _mm_prefetch::<_MM_HINT_T0>(ptr.add(last) as *const i8);
+                    }
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = b;
     }
 
     /// The trilinear interpolation of a block from its stencils: 8 corners, each weighted by
@@ -910,6 +960,25 @@ struct Stencil3 {
 
 use crate::fast::lookup::BLOCK;
 
+/// One block of a batch on a 3-D grid: continuous indices, domain flags and stencils.
+struct Block3 {
+    n: usize,
+    t: [[f64; 4]; BLOCK],
+    ok: [bool; BLOCK],
+    st: Stencil3,
+}
+
+impl Default for Block3 {
+    fn default() -> Block3 {
+        Block3 {
+            n: 0,
+            t: [[0.0; 4]; BLOCK],
+            ok: [false; BLOCK],
+            st: Stencil3::default(),
+        }
+    }
+}
+
 impl Default for Stencil3 {
     fn default() -> Stencil3 {
         Stencil3 {
@@ -1320,7 +1389,10 @@ mod tests {
                 .unwrap(),
                 "halfdiff3 1 channel",
             ),
-            (with_holes(&ggx, "halfdiff3:24x16x32"), "halfdiff3 with invalid cells"),
+            (
+                with_holes(&ggx, "halfdiff3:24x16x32"),
+                "halfdiff3 with invalid cells",
+            ),
             (
                 with_holes(&smooth, "halfdiff4:12x8x12x16"),
                 "halfdiff4 with invalid cells",
@@ -1356,8 +1428,7 @@ mod tests {
                     for ch in 0..c {
                         let (a, b) = (batch[p * c + ch], one[ch]);
                         let rel = (a - b).abs() / a.abs().max(b.abs()).max(f64::MIN_POSITIVE);
-                        if rel > 1e-12 && interp == Interp::Nearest && on_cell_boundary(t, wi, wo)
-                        {
+                        if rel > 1e-12 && interp == Interp::Nearest && on_cell_boundary(t, wi, wo) {
                             // A tie: either neighbour is the nearest; rounding picks one.
                             continue;
                         }
