@@ -79,7 +79,11 @@ fn lookup_batch_merl_grid_table_1thread(bencher: Bencher) {
 /// per pair as the MERL grid, the lookup is bound by computation, not memory.
 #[divan::bench(sample_count = 10)]
 fn lookup_batch_small_table_1thread(bencher: Bencher) {
-    lookup_batch(bencher, "halfdiff3:16x16x32,warp=sqrt/linear/linear", Some(1));
+    lookup_batch(
+        bencher,
+        "halfdiff3:16x16x32,warp=sqrt/linear/linear",
+        Some(1),
+    );
 }
 
 /// `Table::eval_batch` (linear) of the GGX conductor tabulated on `grid`, 10⁶ uniform pairs,

@@ -266,7 +266,7 @@ impl Table {
         for k in 0..d {
             let a = &layout.split[k];
             let s = a.split(t_in[k], nearest);
-            (lo[k], hi[k]) = (a.to_index(s.lo), a.to_index(s.hi));
+            (lo[k], hi[k]) = (a.index_of(s.lo), a.index_of(s.hi));
             frac[k] = s.frac;
             tcont[k] = s.t;
         }
@@ -917,7 +917,7 @@ impl AxisSplit {
     /// A split index as `usize`, in [0, n − 1] whatever the float (NaN gives 0), so that
     /// flat indices built from it are always inside the table.
     #[inline(always)]
-    fn to_index(&self, x: f64) -> usize {
+    fn index_of(&self, x: f64) -> usize {
         (x as usize).min(self.last_index)
     }
 }
