@@ -383,9 +383,10 @@ impl Table {
     /// Batched lookups on a 3-D grid, a block of pairs at a time: the angles
     /// ([`HalfdiffIndexer::indices`]), then every pair's stencil axis by axis in f64 lanes
     /// ([`Table::prepare3`]), then the 8 corners of each pair ([`Table::interpolate3`]).
-    /// Profiling showed the lookup bound by computation, not memory (a table that fits in L2
-    /// was as slow per pair as the 17.5 MB MERL table), so the work is arranged for lanes and
-    /// without branches rather than around cache misses.
+    /// Much of a lookup's cost is computation (the angles, then 8 corners with wrap, clamp
+    /// and validity rules), so the work is arranged for f64 lanes and without branches; the
+    /// corner lines of the next block are prefetched for the part that is memory
+    /// (docs/benchmarks.md, "Batched lookups").
     #[allow(clippy::too_many_arguments)]
     fn eval_blocks3(
         &self,
