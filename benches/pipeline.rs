@@ -63,16 +63,53 @@ fn tabulate_into_reused(bencher: Bencher, grid: &str) {
         .bench_local(|| tabulate_into(&m, &g, &opts, &mut t).unwrap());
 }
 
-/// Batched lookups (10⁶ random pairs) in the MERL-grid table.
+/// Batched lookups (10⁶ random pairs) in the MERL-grid table, on the default thread pool.
 #[divan::bench(sample_count = 10)]
 fn lookup_batch_merl_grid_table(bencher: Bencher) {
+    lookup_batch(bencher, "merl", None);
+}
+
+/// The same on one thread: the per-pair cost without the pool's scheduling.
+#[divan::bench(sample_count = 10)]
+fn lookup_batch_merl_grid_table_1thread(bencher: Bencher) {
+    lookup_batch(bencher, "merl", Some(1));
+}
+
+/// A table that fits in L2 (halfdiff3 16×16×32, RGB, 98 KB), one thread: if this is as slow
+/// per pair as the MERL grid, the lookup is bound by computation, not memory.
+#[divan::bench(sample_count = 10)]
+fn lookup_batch_small_table_1thread(bencher: Bencher) {
+    lookup_batch(
+        bencher,
+        "halfdiff3:16x16x32,warp=sqrt/linear/linear",
+        Some(1),
+    );
+}
+
+/// `Table::eval_batch` (linear) of the GGX conductor tabulated on `grid`, 10⁶ uniform pairs,
+/// on `threads` threads (the default pool when `None`).
+fn lookup_batch(bencher: Bencher, grid: &str, threads: Option<usize>) {
     let m = Model::parse(GGX_CONDUCTOR).unwrap();
-    let table = tabulate(&m, &Grid::merl(), &TabulateOptions::default()).unwrap();
+    let g = if grid == "merl" {
+        Grid::merl()
+    } else {
+        brdfpack::grid::parse_grid_spec(grid).unwrap()
+    };
+    let table = tabulate(&m, &g, &TabulateOptions::default()).unwrap();
     let set = SampleSet::uniform(1_000_000, 1);
     let mut out = vec![0.0; set.pairs.len() * 3];
+    let pool = threads.map(|n| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+    });
     bencher
         .counter(ItemsCount::new(set.pairs.len()))
-        .bench_local(|| table.eval_batch(&set.pairs, Interp::Linear, &mut out));
+        .bench_local(|| match &pool {
+            Some(p) => p.install(|| table.eval_batch(&set.pairs, Interp::Linear, &mut out)),
+            None => table.eval_batch(&set.pairs, Interp::Linear, &mut out),
+        });
 }
 
 #[divan::bench(args = [Interp::Linear, Interp::Nearest])]

@@ -2,9 +2,10 @@
 //!
 //! The generic path (`Grid::coords_of` → `HalfDiff::from_dirs`) takes three atan2 and four
 //! sin_cos per pair. Here the half-frame rotation uses the half vector's own components
-//! (cos φh = h.x/r, sin θh = r/|h| ...), the angles come from a branch-free atan
-//! ([`super::atan2_first_quadrant`]), and the loop over a block of pairs has no calls or
-//! branches, so it vectorizes. Results agree with the generic path to ~1e-15 in angle.
+//! (cos φh = h.x/r, sin θh = r/|h| ..., with one division for both 1/r and 1/|h|), the angles
+//! come from a branch-free atan ([`super::atan2_first_quadrant`], one division for the ratio),
+//! the index maps multiply by a precomputed 1/span, and the loop over a block of pairs has no
+//! calls or branches, so it vectorizes. Results agree with the generic path to ~1e-15 in angle.
 
 use super::{atan2_first_quadrant, atan2_full};
 use crate::geometry::Vec3;
@@ -15,7 +16,8 @@ use crate::math::PI;
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct IndexMap {
     lo: f64,
-    span: f64,
+    /// 1 / (hi − lo): a multiplication per pair instead of a division.
+    inv_span: f64,
     sqrt: bool,
     n: f64,
     offset: f64,
@@ -26,7 +28,7 @@ impl IndexMap {
         let (lo, hi) = a.range();
         IndexMap {
             lo,
-            span: hi - lo,
+            inv_span: 1.0 / (hi - lo),
             sqrt: a.warp == Warp::Sqrt,
             n: a.n as f64,
             // continuous_index(lo) = −(the placement's offset).
@@ -34,10 +36,10 @@ impl IndexMap {
         }
     }
 
-    /// `Axis::continuous_index`, branch-free.
+    /// `Axis::continuous_index` (to an ulp of the fraction), branch-free.
     #[inline(always)]
     fn index(&self, x: f64) -> f64 {
-        let t = (x - self.lo) / self.span;
+        let t = (x - self.lo) * self.inv_span;
         // The sqrt warp's inverse clamps below 0 like `Warp::inverse`.
         let u = if self.sqrt { t.max(0.0).sqrt() } else { t };
         u * self.n + self.offset
@@ -94,24 +96,39 @@ impl HalfdiffIndexer {
 
     #[inline(always)]
     fn indices_impl(&self, pairs: &[(Vec3, Vec3)], t: &mut [[f64; 4]], ok: &mut [bool]) {
+        if self.four {
+            self.indices_kind::<true>(pairs, t, ok)
+        } else {
+            self.indices_kind::<false>(pairs, t, ok)
+        }
+    }
+
+    /// The loop for one grid kind (`FOUR`: halfdiff4), so that it has no branch inside.
+    #[inline(always)]
+    fn indices_kind<const FOUR: bool>(
+        &self,
+        pairs: &[(Vec3, Vec3)],
+        t: &mut [[f64; 4]],
+        ok: &mut [bool],
+    ) {
         let [m0, m1, m2, m3] = self.maps;
-        let four = self.four;
         for ((&(wi, wo), tk), okk) in pairs.iter().zip(t.iter_mut()).zip(ok.iter_mut()) {
             // The half vector unnormalized: its angles do not depend on its length.
             let (hx, hy, hz) = (wi.x + wo.x, wi.y + wo.y, wi.z + wo.z);
-            let r = (hx * hx + hy * hy).sqrt();
-            let len = (r * r + hz * hz).sqrt();
+            let r2 = hx * hx + hy * hy;
+            let r = r2.sqrt();
+            let len = (r2 + hz * hz).sqrt();
             let theta_h = atan2_first_quadrant(r, hz.max(0.0));
-            // On the normal φh is undefined: take 0 (cos 1, sin 0) like atan2(0, 0).
-            let (cp, sp) = if r > 0.0 {
-                (hx / r, hy / r)
+            // The half frame: cos φh = hx/r, sin φh = hy/r, cos θh = hz/len, sin θh = r/len,
+            // from one reciprocal 1/(r·len). On the normal (r = 0) φh is undefined: take 0
+            // (cos 1, sin 0) like atan2(0, 0).
+            let rl = r * len;
+            let inv = 1.0 / if rl > 0.0 { rl } else { 1.0 };
+            let (inv_r, inv_len) = (len * inv, r * inv);
+            let (cp, sp, ct, st) = if rl > 0.0 {
+                (hx * inv_r, hy * inv_r, hz * inv_len, r * inv_len)
             } else {
-                (1.0, 0.0)
-            };
-            let (ct, st) = if len > 0.0 {
-                (hz / len, r / len)
-            } else {
-                (1.0, 0.0)
+                (1.0, 0.0, 1.0, 0.0)
             };
             // wi in the half frame: rotate by −φh about z, then by −θh about y.
             let x1 = cp * wi.x + sp * wi.y;
@@ -120,7 +137,7 @@ impl HalfdiffIndexer {
             let z2 = st * x1 + ct * wi.z;
             let theta_d = atan2_first_quadrant((x2 * x2 + y1 * y1).sqrt(), z2.max(0.0));
             let phi_d = atan2_full(y1, x2);
-            if four {
+            if FOUR {
                 let phi_h = atan2_full(hy, hx);
                 let wrap = |a: f64| if a < 0.0 { a + 2.0 * PI } else { a };
                 *tk = [
