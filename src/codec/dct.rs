@@ -4,8 +4,8 @@
 //!
 //! The transform is orthonormal, so the squared error of the transformed table equals that of
 //! the coefficients (Parseval): a step s gives an RMS error of about s/√12 in the transformed
-//! space wherever coefficients are not zeroed. The decoder expands the box back to the grid one
-//! axis at a time (cost ∝ cells × box extent along the first axis), in f32.
+//! space wherever coefficients are not zeroed. The decoder ([`super::idct`]) expands the box
+//! back to the grid one axis at a time, in f32.
 
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -249,28 +249,10 @@ pub fn deserialize(b: &[u8], dims: &[usize], components: usize) -> Result<Vec<Co
     Ok(out)
 }
 
-/// Reconstructs one component plane (every cell) from its quantized box, in f32.
+/// Reconstructs one component plane (every cell) from its quantized box, in f32 (the fast
+/// path of [`super::idct`]).
 pub fn inverse(c: &Coefficients, dims: &[usize], step: f64) -> Vec<f32> {
-    let cells: usize = dims.iter().product();
-    if c.codes.is_empty() {
-        return vec![0.0; cells];
-    }
-    let mut cur: Vec<f32> = c.codes.iter().map(|&q| (q as f64 * step) as f32).collect();
-    let mut cur_dims = c.extent.clone();
-    // Expand the last axis first: the box is smallest then, so the big passes come last.
-    for a in (0..dims.len()).rev() {
-        let n = dims[a];
-        let k = c.extent[a];
-        let full = dct_matrix(n);
-        // Inverse = transpose: mat[i][kk] = C[kk][i], truncated to the box's frequencies.
-        let mat: Vec<f32> = (0..n)
-            .flat_map(|i| (0..k).map(move |kk| (i, kk)))
-            .map(|(i, kk)| full[kk * n + i] as f32)
-            .collect();
-        cur = apply_axis(&cur, &cur_dims, a, &mat, n, false);
-        cur_dims[a] = n;
-    }
-    cur
+    super::idct::inverse(c, dims, step)
 }
 
 #[cfg(test)]
