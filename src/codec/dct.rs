@@ -23,17 +23,22 @@ pub struct DctStage {
 pub fn dct_matrix(n: usize) -> Vec<f64> {
     let mut m = vec![0.0; n * n];
     for k in 0..n {
-        let s = if k == 0 {
-            (1.0 / n as f64).sqrt()
-        } else {
-            (2.0 / n as f64).sqrt()
-        };
         for j in 0..n {
-            m[k * n + j] =
-                s * (std::f64::consts::PI * (j as f64 + 0.5) * k as f64 / n as f64).cos();
+            m[k * n + j] = dct_entry(n, k, j);
         }
     }
     m
+}
+
+/// One entry of [`dct_matrix`]: row k, column j (the same f64 value).
+#[inline]
+pub fn dct_entry(n: usize, k: usize, j: usize) -> f64 {
+    let s = if k == 0 {
+        (1.0 / n as f64).sqrt()
+    } else {
+        (2.0 / n as f64).sqrt()
+    };
+    s * (std::f64::consts::PI * (j as f64 + 0.5) * k as f64 / n as f64).cos()
 }
 
 /// out[o][i][x] = Σ_j mat[i][j] · in[o][j][x] along `axis` (mat is m × dims[axis]).
@@ -233,7 +238,14 @@ pub fn deserialize(b: &[u8], dims: &[usize], components: usize) -> Result<Vec<Co
         };
         let mut codes = Vec::with_capacity(total.min(b.len()));
         for _ in 0..total {
-            let u = get_varint(b, &mut pos)?;
+            // One-byte codes (|q| < 64) are the common case: no loop.
+            let u = match b.get(pos) {
+                Some(&byte) if byte < 0x80 => {
+                    pos += 1;
+                    byte as u64
+                }
+                _ => get_varint(b, &mut pos)?,
+            };
             let u =
                 u32::try_from(u).map_err(|_| Error::input("DCT stream: code exceeds 32 bits"))?;
             codes.push(((u >> 1) as i32) ^ -((u & 1) as i32));

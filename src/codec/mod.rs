@@ -22,10 +22,10 @@ pub mod quantize;
 pub mod reference;
 pub mod search;
 mod simd;
-mod unpredict;
 #[doc(hidden)]
 pub mod testdata;
 pub mod transform;
+mod unpredict;
 
 use crate::grid::{Grid, GridKind};
 use crate::table::Table;
@@ -347,19 +347,9 @@ impl CodecSpec {
                     .ok_or_else(|| Error::input("table too large"))?;
                 let raw = entropy.decompress_capped(payload, cap)?;
                 let comps = dct::deserialize(&raw, &dims, c)?;
-                let cells = layout.valid.len();
-                let mut planes = vec![0f32; cells * c];
-                let mut scratch = Vec::new();
-                for ((q, &s), plane) in comps
-                    .iter()
-                    .zip(&stage.step)
-                    .zip(planes.chunks_exact_mut(cells))
-                {
-                    idct::inverse_into(q, &dims, s, plane, &mut scratch);
-                }
-                let views: Vec<&[f32]> = planes.chunks_exact(cells).collect();
                 let mut out = vec![0f32; values];
-                simd::finish(transform, &views, layout.valid, &mut out);
+                let fin = simd::Finisher::new(transform, c);
+                idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, &mut out);
                 Ok(out)
             }
         }

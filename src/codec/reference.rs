@@ -79,7 +79,12 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
     }
 }
 
-fn reconstruct_f32(p: &Predictor, res: &[u32], layout: &Layout, dims: &[usize]) -> Result<Vec<f32>> {
+fn reconstruct_f32(
+    p: &Predictor,
+    res: &[u32],
+    layout: &Layout,
+    dims: &[usize],
+) -> Result<Vec<f32>> {
     p.reconstruct_f32(res, &layout.shape(dims))
 }
 

@@ -77,65 +77,139 @@ pub fn exp_f32(x: f32) -> f32 {
     y * f32::from_bits(e as u32)
 }
 
-/// Cells per block of [`finish`]: one AVX2 register of f32.
+/// Cells per block of [`Finisher::run`]: one AVX2 register of f32.
 const LANES: usize = 8;
 
 /// The last decoder step: per cell, y = Mᵀ z (when there is a colour matrix), the inverse
-/// curve, written channel-interleaved into `out` (cell-major); invalid cells get 0.
-/// `planes[k]` holds component k of every cell.
-pub fn finish(t: &Transform, planes: &[&[f32]], valid: &[bool], out: &mut [f32]) {
-    let c = planes.len();
-    let m: Vec<f32> = match &t.colour {
-        Some(col) => col.matrix.iter().map(|&x| x as f32).collect(),
-        None => (0..c * c)
-            .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
-            .collect(),
-    };
-    let eps: Option<Vec<f32>> = match &t.curve {
-        Curve::Linear => None,
-        Curve::Log { eps } => Some(eps.iter().map(|&e| e as f32).collect()),
-    };
-    let colour = t.colour.is_some();
-    match c {
-        1 => finish_1(planes, &m, eps.as_deref(), colour, valid, out),
-        3 => finish_3(planes, &m, eps.as_deref(), colour, valid, out),
-        _ => finish_n(planes, &m, eps.as_deref(), colour, valid, out),
-    }
+/// curve, written channel-interleaved (cell-major); invalid cells get 0.
+pub(crate) struct Finisher {
+    c: usize,
+    /// Mᵀ applied as y_k = Σ_i m[i·c + k] z_i (the identity without colour).
+    m: Vec<f32>,
+    eps: Option<Vec<f32>>,
+    colour: bool,
 }
 
-dispatch!(fn finish_1 / finish_1_avx2 => finish_c1(planes: &[&[f32]], m: &[f32], eps: Option<&[f32]>, colour: bool, valid: &[bool], out: &mut [f32]));
-dispatch!(fn finish_3 / finish_3_avx2 => finish_c3(planes: &[&[f32]], m: &[f32], eps: Option<&[f32]>, colour: bool, valid: &[bool], out: &mut [f32]));
-dispatch!(fn finish_n / finish_n_avx2 => finish_cn(planes: &[&[f32]], m: &[f32], eps: Option<&[f32]>, colour: bool, valid: &[bool], out: &mut [f32]));
-
-#[inline(always)]
-fn finish_c1(p: &[&[f32]], m: &[f32], e: Option<&[f32]>, col: bool, v: &[bool], o: &mut [f32]) {
-    finish_const::<1>(p, m, e, col, v, o)
-}
-#[inline(always)]
-fn finish_c3(p: &[&[f32]], m: &[f32], e: Option<&[f32]>, col: bool, v: &[bool], o: &mut [f32]) {
-    finish_const::<3>(p, m, e, col, v, o)
-}
-#[inline(always)]
-fn finish_cn(p: &[&[f32]], m: &[f32], e: Option<&[f32]>, col: bool, v: &[bool], o: &mut [f32]) {
-    let c = p.len();
-    for (f, &ok) in v.iter().enumerate() {
-        for k in 0..c {
-            o[f * c + k] = if ok {
-                let y = if col {
-                    let mut s = 0f32;
-                    for (i, pl) in p.iter().enumerate() {
-                        s += m[i * c + k] * pl[f];
-                    }
-                    s
-                } else {
-                    p[k][f]
-                };
-                curve_inverse(y, e.map(|e| e[k]))
-            } else {
-                0.0
-            };
+impl Finisher {
+    pub(crate) fn new(t: &Transform, c: usize) -> Finisher {
+        let m = match &t.colour {
+            Some(col) => col.matrix.iter().map(|&x| x as f32).collect(),
+            None => (0..c * c)
+                .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
+                .collect(),
+        };
+        let eps = match &t.curve {
+            Curve::Linear => None,
+            Curve::Log { eps } => Some(eps.iter().map(|&e| e as f32).collect()),
+        };
+        Finisher {
+            c,
+            m,
+            eps,
+            colour: t.colour.is_some(),
         }
     }
+
+    /// Cells `0..valid.len()` of the component runs `planes` into `out` (C values per cell).
+    /// Inlined into the caller's AVX2 or portable copy.
+    #[inline(always)]
+    pub(crate) fn run<const C: usize>(&self, planes: [&[f32]; C], valid: &[bool], out: &mut [f32]) {
+        debug_assert_eq!(self.c, C);
+        let cells = valid.len();
+        let mut mm = [[0f32; C]; C];
+        for i in 0..C {
+            for k in 0..C {
+                mm[i][k] = self.m[i * C + k];
+            }
+        }
+        let log = self.eps.is_some();
+        let ee: [f32; C] = std::array::from_fn(|k| self.eps.as_ref().map_or(0.0, |e| e[k]));
+        let mut f0 = 0;
+        while f0 < cells {
+            let n = LANES.min(cells - f0);
+            let mut z = [[0f32; LANES]; C];
+            for k in 0..C {
+                z[k][..n].copy_from_slice(&planes[k][f0..f0 + n]);
+            }
+            let mut y = [[0f32; LANES]; C];
+            for k in 0..C {
+                if self.colour {
+                    for l in 0..LANES {
+                        let mut s = 0f32;
+                        for i in 0..C {
+                            s += mm[i][k] * z[i][l];
+                        }
+                        y[k][l] = s;
+                    }
+                } else {
+                    y[k] = z[k];
+                }
+                if log {
+                    for l in 0..LANES {
+                        y[k][l] = (exp_f32(y[k][l]) - ee[k]).max(0.0);
+                    }
+                }
+            }
+            for l in 0..n {
+                let ok = valid[f0 + l];
+                for k in 0..C {
+                    out[(f0 + l) * C + k] = if ok { y[k][l] } else { 0.0 };
+                }
+            }
+            f0 += n;
+        }
+    }
+
+    /// Any channel count, one cell at a time (the fused fast paths cover 1 and 3 channels).
+    #[inline(always)]
+    fn run_any(&self, planes: &[&[f32]], valid: &[bool], out: &mut [f32]) {
+        let c = self.c;
+        for (f, &ok) in valid.iter().enumerate() {
+            for k in 0..c {
+                out[f * c + k] = if ok {
+                    let y = if self.colour {
+                        let mut s = 0f32;
+                        for (i, pl) in planes.iter().enumerate() {
+                            s += self.m[i * c + k] * pl[f];
+                        }
+                        s
+                    } else {
+                        planes[k][f]
+                    };
+                    curve_inverse(y, self.eps.as_ref().map(|e| e[k]))
+                } else {
+                    0.0
+                };
+            }
+        }
+    }
+}
+
+/// Whole component planes (`planes[k]` holds component k of every cell) through the
+/// [`Finisher`] into `out`.
+pub(crate) fn finish(f: &Finisher, planes: &[&[f32]], valid: &[bool], out: &mut [f32]) {
+    match planes.len() {
+        1 => finish_1(f, planes, valid, out),
+        3 => finish_3(f, planes, valid, out),
+        _ => finish_n(f, planes, valid, out),
+    }
+}
+
+dispatch!(fn finish_1 / finish_1_avx2 => finish_c1(f: &Finisher, planes: &[&[f32]], valid: &[bool], out: &mut [f32]));
+dispatch!(fn finish_3 / finish_3_avx2 => finish_c3(f: &Finisher, planes: &[&[f32]], valid: &[bool], out: &mut [f32]));
+dispatch!(fn finish_n / finish_n_avx2 => finish_cn(f: &Finisher, planes: &[&[f32]], valid: &[bool], out: &mut [f32]));
+
+#[inline(always)]
+fn finish_c1(f: &Finisher, p: &[&[f32]], v: &[bool], o: &mut [f32]) {
+    f.run::<1>([p[0]], v, o)
+}
+#[inline(always)]
+fn finish_c3(f: &Finisher, p: &[&[f32]], v: &[bool], o: &mut [f32]) {
+    f.run::<3>([p[0], p[1], p[2]], v, o)
+}
+#[inline(always)]
+fn finish_cn(f: &Finisher, p: &[&[f32]], v: &[bool], o: &mut [f32]) {
+    f.run_any(p, v, o)
 }
 
 /// The inverse curve applied in place to cell-major values (`c` per cell); invalid cells set
@@ -176,65 +250,6 @@ fn curve_inverse(y: f32, eps: Option<f32>) -> f32 {
     }
 }
 
-#[inline(always)]
-fn finish_const<const C: usize>(
-    planes: &[&[f32]],
-    m: &[f32],
-    eps: Option<&[f32]>,
-    colour: bool,
-    valid: &[bool],
-    out: &mut [f32],
-) {
-    let cells = valid.len();
-    let pl: [&[f32]; C] = std::array::from_fn(|k| &planes[k][..cells]);
-    let out = &mut out[..cells * C];
-    let mut mm = [[0f32; C]; C];
-    for i in 0..C {
-        for k in 0..C {
-            mm[i][k] = m[i * C + k];
-        }
-    }
-    let ee: [f32; C] = std::array::from_fn(|k| eps.map_or(0.0, |e| e[k]));
-    let log = eps.is_some();
-    let block = |f0: usize, n: usize, out: &mut [f32]| {
-        let mut z = [[0f32; LANES]; C];
-        for k in 0..C {
-            z[k][..n].copy_from_slice(&pl[k][f0..f0 + n]);
-        }
-        let mut y = [[0f32; LANES]; C];
-        for k in 0..C {
-            if colour {
-                for l in 0..LANES {
-                    let mut s = 0f32;
-                    for i in 0..C {
-                        s += mm[i][k] * z[i][l];
-                    }
-                    y[k][l] = s;
-                }
-            } else {
-                y[k] = z[k];
-            }
-            if log {
-                for l in 0..LANES {
-                    y[k][l] = (exp_f32(y[k][l]) - ee[k]).max(0.0);
-                }
-            }
-        }
-        for l in 0..n {
-            let ok = valid[f0 + l];
-            for k in 0..C {
-                out[(f0 + l) * C + k] = if ok { y[k][l] } else { 0.0 };
-            }
-        }
-    };
-    let mut f0 = 0;
-    while f0 < cells {
-        let n = LANES.min(cells - f0);
-        block(f0, n, out);
-        f0 += n;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -272,7 +287,9 @@ mod tests {
             // Small arguments, where most of a log-curve table lives.
             check((rng.next_f64() * 8.0 - 4.0) as f32);
         }
-        for x in [EXP_MIN, EXP_MAX, 0.0, -0.0, 1.0, -1.0, 0.3465736, -0.3465736] {
+        for x in [
+            EXP_MIN, EXP_MAX, 0.0, -0.0, 1.0, -1.0, 0.3465736, -0.3465736,
+        ] {
             check(x);
         }
         assert!(worst.0 <= 1.0, "worst {} ulp at x = {}", worst.0, worst.1);

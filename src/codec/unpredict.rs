@@ -301,13 +301,22 @@ mod tests {
         let dims = [3usize, 2, 4, 5];
         let n = 120;
         let valid: Vec<bool> = (0..n).map(|i| i % 7 != 3).collect();
-        let shape = Shape { dims: &dims, valid: &valid, channels: 2 };
+        let shape = Shape {
+            dims: &dims,
+            valid: &valid,
+            channels: 2,
+        };
         let data: Vec<f32> = (0..n * 2).map(|i| (i as f32 * 0.37).sin() * 10.0).collect();
         for p in candidates(4, 2) {
             let res = p.residuals_f32(&data, &shape).unwrap();
             let want = p.reconstruct_f32(&res, &shape).unwrap();
             let got = reconstruct_f32(&p, &shuffle(&res), &shape).unwrap();
-            assert!(got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()), "{p:?}");
+            assert!(
+                got.iter()
+                    .zip(&want)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{p:?}"
+            );
             let b = shuffle(&res);
             assert!(reconstruct_f32(&p, &b[..b.len() - 4], &shape).is_err());
             assert!(reconstruct_f32(&p, &b[..b.len() - 1], &shape).is_err());
