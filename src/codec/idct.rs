@@ -15,6 +15,8 @@
 //! Results differ from the reference only by f32 rounding (another summation order), far
 //! below the quantization noise: tested against the reference decoder.
 
+#![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
+
 use super::dct::{Coefficients, dct_entry};
 use super::simd::{Finisher, dispatch, finish};
 

@@ -780,9 +780,11 @@ mod tests {
     }
 
     /// Decoded values of the fast decoders against `reference::decode`: bit for bit where
-    /// the chain is lossless or uses no `exp` (linear curve), else within 2e-5 relative to
-    /// ε + x (a log-space error of 2e-5: f32 DCT sums in another order, ≤ 1 ulp `exp`),
-    /// three orders of magnitude below the finest DCT/f16 quantization.
+    /// the chain is lossless, or quantized with the linear curve (no `exp`, same f64 maths);
+    /// else within 5e-5 relative to ε + x, i.e. a log-space error of 5e-5: the DCT's f32 sums
+    /// run in another order (rounding ≲ box terms × 2⁻²⁴ × the largest partial sum) and `exp`
+    /// is ≤ 1 ulp. That is 6× below the quantization noise of the finest step tested
+    /// (step/√12 = 2.9e-4 at step 1e-3).
     fn assert_matches_reference(t: &Table, spec: &CodecSpec, what: &str) {
         let layout = Layout::of(t);
         let payload = spec.encode(t).unwrap();
@@ -808,7 +810,7 @@ mod tests {
                 assert_eq!(a.to_bits(), b.to_bits(), "{what}: value {i}: {a} vs {b}");
             } else {
                 assert!(
-                    (a - b).abs() <= 2e-5 * (b.abs() + eps) + f32::MIN_POSITIVE,
+                    (a - b).abs() <= 5e-5 * (b.abs() + eps) + f32::MIN_POSITIVE,
                     "{what}: value {i}: {a} vs {b} (ε {eps})"
                 );
             }

@@ -7,6 +7,8 @@
 //! multiply and an add on its own), so both copies perform the same IEEE operations in the same
 //! order and give the same bits: a file decodes identically on every x86-64 CPU.
 
+#![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
+
 use super::transform::{Curve, Transform};
 
 /// True when the AVX2 copies of the decoder loops can run on this CPU.
