@@ -49,9 +49,12 @@ fn gold() -> Option<&'static Table> {
         .as_ref()
 }
 
+/// Encoded cases: spec and payload by case name.
+type Cache = Mutex<HashMap<&'static str, (CodecSpec, Vec<u8>)>>;
+
 /// (table, spec, payload) of a case, encoded once and shared by both benches.
 fn encoded(case: &'static str) -> (&'static Table, CodecSpec, Vec<u8>) {
-    static CACHE: OnceLock<Mutex<HashMap<&'static str, (CodecSpec, Vec<u8>)>>> = OnceLock::new();
+    static CACHE: OnceLock<Cache> = OnceLock::new();
     let (name, spec) = case.split_once(' ').expect("case = TABLE SPEC");
     let t = match name {
         "ggx" => ggx(),

@@ -62,6 +62,8 @@ pub fn exp_f32(x: f32) -> f32 {
     // ln2 split so that n·LN2_HI is exact for |n| ≤ 128 (LN2_HI has 9 significant bits).
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
+    // Not `clamp`: it would keep NaN, and NaN must read as EXP_MIN.
+    #[allow(clippy::manual_clamp)]
     let x = x.max(EXP_MIN).min(EXP_MAX);
     let t = x * LOG2E + MAGIC;
     let n = t - MAGIC;
@@ -72,7 +74,7 @@ pub fn exp_f32(x: f32) -> f32 {
     p = p * r + 8.333_452e-3;
     p = p * r + 4.166_579_6e-2;
     p = p * r + 1.666_666_5e-1;
-    p = p * r + 5.000_000_1e-1;
+    p = p * r + 0.5; // Cephes 5.0000001201e-1 rounds to 0.5 in f32.
     let y = p * (r * r) + r + 1.0;
     // 2^n from the integer in t's mantissa: n ∈ [−126, 127] here, a normal exponent.
     let e = (t.to_bits() as i32 - MAGIC.to_bits() as i32 + 127) << 23;

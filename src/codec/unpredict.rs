@@ -6,15 +6,8 @@
 //! cross-channel offset added back (vectorized); (2) integer space: the part of the prediction
 //! that reads earlier rows is summed for the whole row at once (wrapping i32 arithmetic is
 //! associative, so any order gives the reference's bits), then the row is rebuilt left to right
-//! from the in-row terms; (3) float space: the reference adds the f64 terms one by one in the
-//! stencil's order, in-row terms first, so its rounding depends on that order. The fast path
-//! sums the earlier-row terms for the whole row and adds them to the in-row sum, which gives
-//! the same bits whenever every partial sum is exact: all terms are multiples of the unit of
-//! the smallest exponent among them, and |partial sum| < Σ|coef| · 2^(Emax+1), so with
-//! Σ|coef| < 2^L (L = sum of the orders) the sums are exact in f64's 53 bits when the
-//! exponents span at most 29 − L. Each value checks its span; a row where one fails is
-//! recomputed in the reference order (if the fast and exact rows differed, the first
-//! differing value would have passed the check on identical inputs: a contradiction).
+//! from the in-row terms; float space: the reference's f64 sum runs term by term in the
+//! stencil's order (rounding depends on that order), with the term table resolved once.
 
 #![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
 
@@ -219,18 +212,10 @@ pub fn reconstruct_f32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
     let rows = Rows::new(&st, shape.dims, c);
     // The reference adds the terms in the stencil's order; so must we (f64 rounding).
     let terms: Vec<(usize, f64)> = st.terms.iter().map(|&(o, k)| (o, k as f64)).collect();
-    let in_row: Vec<(usize, f64)> = rows.in_row.iter().map(|&(o, k)| (o, k as f64)).collect();
-    let earlier: Vec<(usize, f64)> = rows.earlier.iter().map(|&(o, k)| (o, k as f64)).collect();
-    // Exactness bound (module doc): with Σ|coef| < 2^L, L = Σ orders, every partial sum of
-    // terms whose f32 exponents span at most 29 − L is exact in f64.
-    let spread_limit = 29 - p.orders.iter().map(|&o| o as i32).sum::<i32>();
     let row_values = rows.last * c;
     let mut w = vec![0f32; st.padded_len(c)];
     let mut out = vec![0f32; shape.valid.len() * c];
     let mut r = vec![0i32; row_values];
-    let mut rest = vec![0f64; row_values];
-    let mut lo = vec![0u8; row_values];
-    let mut hi = vec![0u8; row_values];
     let mut next = 0usize;
     rows.for_each(shape.dims, &st, |row, base| {
         let cell0 = row * rows.last;
@@ -238,46 +223,6 @@ pub fn reconstruct_f32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
         let nres = valid.iter().filter(|&&v| v).count() * c;
         gather_residuals(planes, next, c, p.cross_channel, &mut r[..nres]);
         next += nres;
-        // Fast: the earlier-row terms summed for the whole row (in stencil order), the in-row
-        // terms added left to right, then the two parts; valid when every sum is exact.
-        earlier_sum_f64(&w, base, &earlier, &mut rest, &mut lo, &mut hi);
-        let mut j = 0;
-        let mut inexact = false;
-        for (k, &ok) in valid.iter().enumerate() {
-            let i = base + k * c;
-            if !ok {
-                for ch in 0..c {
-                    w[i + ch] = if k > 0 { w[i + ch - c] } else { 0.0 };
-                }
-                continue;
-            }
-            for ch in 0..c {
-                let ii = i + ch;
-                let jj = k * c + ch;
-                let (mut l, mut h) = (lo[jj], hi[jj]);
-                let mut s = 0f64;
-                for &(off, coef) in &in_row {
-                    let v = w[ii - off];
-                    s += coef * v as f64;
-                    let (vl, vh) = exponent_range(v);
-                    l = l.min(vl);
-                    h = h.max(vh);
-                }
-                if !in_row.is_empty() {
-                    inexact |= h as i32 - l as i32 > spread_limit;
-                }
-                s += rest[jj];
-                let pred = s.clamp(-f32::MAX as f64, f32::MAX as f64) as f32;
-                let x = float_of(key_of(pred).wrapping_add(r[j]));
-                j += 1;
-                w[ii] = x;
-                out[(cell0 + k) * c + ch] = x;
-            }
-        }
-        if !inexact {
-            return;
-        }
-        // Exact: the reference's order, term by term (rows whose magnitudes span > 2^20).
         let mut j = 0;
         for (k, &ok) in valid.iter().enumerate() {
             let i = base + k * c;
@@ -303,51 +248,6 @@ pub fn reconstruct_f32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
         }
     });
     Ok(out)
-}
-
-/// The binade span of a term value for the exactness test: (lowest, highest) biased exponent,
-/// subnormals as 1 (their unit is that of exponent 1); zero adds nothing (empty range);
-/// Inf/NaN force the exact path (full range).
-#[inline(always)]
-fn exponent_range(v: f32) -> (u8, u8) {
-    let a = v.to_bits() & 0x7fff_ffff;
-    let e = (a >> 23) as u8;
-    if a == 0 {
-        (u8::MAX, 0)
-    } else if e == u8::MAX {
-        (0, u8::MAX)
-    } else {
-        (e.max(1), e.max(1))
-    }
-}
-
-dispatch!(fn earlier_sum_f64 / earlier_sum_f64_avx2 => earlier_f64_impl(w: &[f32], base: usize, terms: &[(usize, f64)], rest: &mut [f64], lo: &mut [u8], hi: &mut [u8]));
-
-/// rest[j] = Σ_terms coef · w[base + j − off] in f64, in the terms' order, and the exponent
-/// range of the values read.
-#[inline(always)]
-fn earlier_f64_impl(
-    w: &[f32],
-    base: usize,
-    terms: &[(usize, f64)],
-    rest: &mut [f64],
-    lo: &mut [u8],
-    hi: &mut [u8],
-) {
-    let n = rest.len();
-    rest.fill(0.0);
-    lo.fill(u8::MAX);
-    hi.fill(0);
-    for &(off, coef) in terms {
-        let src = &w[base - off..base - off + n];
-        for j in 0..n {
-            let v = src[j];
-            rest[j] += coef * v as f64;
-            let (l, h) = exponent_range(v);
-            lo[j] = lo[j].min(l);
-            hi[j] = hi[j].max(h);
-        }
-    }
 }
 
 #[cfg(test)]
