@@ -4,8 +4,8 @@
 //!
 //! The transform is orthonormal, so the squared error of the transformed table equals that of
 //! the coefficients (Parseval): a step s gives an RMS error of about s/√12 in the transformed
-//! space wherever coefficients are not zeroed. The decoder expands the box back to the grid one
-//! axis at a time (cost ∝ cells × box extent along the first axis), in f32.
+//! space wherever coefficients are not zeroed. The decoder ([`super::idct`]) expands the box
+//! back to the grid one axis at a time, in f32.
 
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -23,17 +23,22 @@ pub struct DctStage {
 pub fn dct_matrix(n: usize) -> Vec<f64> {
     let mut m = vec![0.0; n * n];
     for k in 0..n {
-        let s = if k == 0 {
-            (1.0 / n as f64).sqrt()
-        } else {
-            (2.0 / n as f64).sqrt()
-        };
         for j in 0..n {
-            m[k * n + j] =
-                s * (std::f64::consts::PI * (j as f64 + 0.5) * k as f64 / n as f64).cos();
+            m[k * n + j] = dct_entry(n, k, j);
         }
     }
     m
+}
+
+/// One entry of [`dct_matrix`]: row k, column j (the same f64 value).
+#[inline]
+pub fn dct_entry(n: usize, k: usize, j: usize) -> f64 {
+    let s = if k == 0 {
+        (1.0 / n as f64).sqrt()
+    } else {
+        (2.0 / n as f64).sqrt()
+    };
+    s * (std::f64::consts::PI * (j as f64 + 0.5) * k as f64 / n as f64).cos()
 }
 
 /// out[o][i][x] = Σ_j mat[i][j] · in[o][j][x] along `axis` (mat is m × dims[axis]).
@@ -251,7 +256,14 @@ pub fn deserialize(b: &[u8], dims: &[usize], components: usize) -> Result<Vec<Co
         };
         let mut codes = Vec::with_capacity(total.min(b.len()));
         for _ in 0..total {
-            let u = get_varint(b, &mut pos)?;
+            // One-byte codes (|q| < 64) are the common case: no loop.
+            let u = match b.get(pos) {
+                Some(&byte) if byte < 0x80 => {
+                    pos += 1;
+                    byte as u64
+                }
+                _ => get_varint(b, &mut pos)?,
+            };
             let u =
                 u32::try_from(u).map_err(|_| Error::input("DCT stream: code exceeds 32 bits"))?;
             codes.push(((u >> 1) as i32) ^ -((u & 1) as i32));
@@ -267,28 +279,10 @@ pub fn deserialize(b: &[u8], dims: &[usize], components: usize) -> Result<Vec<Co
     Ok(out)
 }
 
-/// Reconstructs one component plane (every cell) from its quantized box, in f32.
+/// Reconstructs one component plane (every cell) from its quantized box, in f32 (the fast
+/// path of [`super::idct`]).
 pub fn inverse(c: &Coefficients, dims: &[usize], step: f64) -> Vec<f32> {
-    let cells: usize = dims.iter().product();
-    if c.codes.is_empty() {
-        return vec![0.0; cells];
-    }
-    let mut cur: Vec<f32> = c.codes.iter().map(|&q| (q as f64 * step) as f32).collect();
-    let mut cur_dims = c.extent.clone();
-    // Expand the last axis first: the box is smallest then, so the big passes come last.
-    for a in (0..dims.len()).rev() {
-        let n = dims[a];
-        let k = c.extent[a];
-        let full = dct_matrix(n);
-        // Inverse = transpose: mat[i][kk] = C[kk][i], truncated to the box's frequencies.
-        let mat: Vec<f32> = (0..n)
-            .flat_map(|i| (0..k).map(move |kk| (i, kk)))
-            .map(|(i, kk)| full[kk * n + i] as f32)
-            .collect();
-        cur = apply_axis(&cur, &cur_dims, a, &mat, n, false);
-        cur_dims[a] = n;
-    }
-    cur
+    super::idct::inverse(c, dims, step)
 }
 
 #[cfg(test)]

@@ -54,7 +54,7 @@ fn zigzag(r: i32) -> u32 {
 }
 
 #[inline]
-fn unzigzag(u: u32) -> i32 {
+pub(super) fn unzigzag(u: u32) -> i32 {
     ((u >> 1) as i32) ^ -((u & 1) as i32)
 }
 
@@ -68,14 +68,14 @@ pub struct Shape<'a> {
 
 /// The stencil of a predictor on a padded array: (flat offset back, coefficient) for every
 /// neighbour (the cell itself, coefficient 1, is excluded).
-struct Stencil {
-    terms: Vec<(usize, i64)>,
-    pdims: Vec<usize>,
-    pad: Vec<usize>,
+pub(super) struct Stencil {
+    pub(super) terms: Vec<(usize, i64)>,
+    pub(super) pdims: Vec<usize>,
+    pub(super) pad: Vec<usize>,
 }
 
 impl Stencil {
-    fn new(orders: &[u8], dims: &[usize], channels: usize) -> Result<Stencil> {
+    pub(super) fn new(orders: &[u8], dims: &[usize], channels: usize) -> Result<Stencil> {
         if orders.len() != dims.len() || orders.iter().any(|&o| o > 2) {
             return Err(Error::input(format!(
                 "predictor orders {orders:?}: expected one order in 0..=2 per grid axis ({} axes)",
@@ -121,7 +121,7 @@ impl Stencil {
         Ok(Stencil { terms, pdims, pad })
     }
 
-    fn padded_len(&self, channels: usize) -> usize {
+    pub(super) fn padded_len(&self, channels: usize) -> usize {
         self.pdims.iter().product::<usize>() * channels
     }
 }
@@ -326,11 +326,14 @@ fn pop_residual(u: u32, r0: &mut i32, ch: usize, cross: bool) -> i32 {
 }
 
 fn check_count(res: &[u32], shape: &Shape) -> Result<()> {
+    check_residual_count(res.len(), shape)
+}
+
+pub(super) fn check_residual_count(n: usize, shape: &Shape) -> Result<()> {
     let want = shape.valid.iter().filter(|&&v| v).count() * shape.channels;
-    if res.len() != want {
+    if n != want {
         return Err(Error::input(format!(
-            "payload holds {} residuals, expected {want} (valid cells × channels)",
-            res.len()
+            "payload holds {n} residuals, expected {want} (valid cells × channels)"
         )));
     }
     Ok(())

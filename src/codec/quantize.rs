@@ -116,6 +116,34 @@ impl Quantizer {
             Quantizer::Uniform { origin, step } => origin[k] + q as f64 * step[k],
         }
     }
+
+    /// [`Quantizer::decode`] of many codes (component = index mod `c`), rounded to f32: the
+    /// same values; f16 codes go through `half`'s bulk slice conversion (F16C when the CPU
+    /// has it).
+    pub fn decode_all_f32(&self, codes: &[i32], c: usize) -> Vec<f32> {
+        match self {
+            Quantizer::F16 { scale } => {
+                use half::slice::HalfFloatSliceExt;
+                let h: Vec<f16> = codes.iter().map(|&q| f16_of_key(q)).collect();
+                let mut out = vec![0f32; h.len()];
+                h.as_slice().convert_to_f32_slice(&mut out);
+                for v in &mut out {
+                    // As `decode`: hostile Inf/NaN codes read as 0; the division in f64.
+                    *v = if v.is_finite() {
+                        (*v as f64 / scale) as f32
+                    } else {
+                        0.0
+                    };
+                }
+                out
+            }
+            Quantizer::Uniform { .. } => codes
+                .iter()
+                .enumerate()
+                .map(|(i, &q)| self.decode(q, i % c) as f32)
+                .collect(),
+        }
+    }
 }
 
 /// Order-preserving integer of an f16 (−0 maps with +0).
