@@ -71,7 +71,11 @@ fn coding_zstd_writes_the_old_format_and_context_coding_is_smaller() {
     );
     // With dead zone 0.5 the coefficients are those of the zstd path: same decoded table.
     let back = ctx.decode(&cp, &Layout::of(&source)).unwrap();
-    assert!(back.iter().zip(&dec).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(
+        back.iter()
+            .zip(&dec)
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
     let file = native::to_bytes(&source, &ctx).unwrap();
     let again = native::from_bytes(&file, Path::new("ctx.bpk")).unwrap();
     assert!(

@@ -124,7 +124,11 @@ fn budget_case(name: &str, t: &Table, budget: &str, max_file: usize) -> bool {
     )
     .unwrap();
     let m = &r.best.metrics;
-    let h = r.best.held_out.as_ref().expect("a uniform set has a held-out set");
+    let h = r
+        .best
+        .held_out
+        .as_ref()
+        .expect("a uniform set has a held-out set");
     let i = &rep.combined;
     let chosen = r
         .trials
@@ -226,5 +230,53 @@ fn figures_tiny_alpha_packs_without_inf() {
             "{s}"
         );
         println!("ALPHA 5e-4 {s}: {} B, max decoded {max:.4e}", file.len());
+    }
+}
+
+/// Bytes-vs-error curves of docs/compression.md: the same DCT coefficients (log ε = 1e-3 of
+/// the mean, KLT colour, plain fill) coded with varints + zstd-19 (the plain-DCT baseline) and
+/// with the context coder (dead zone 0.5: the same coefficients; and the default 0.75), at a
+/// ladder of steps. Payload bytes; errors on `uniform` 65,536 pairs seed 1.
+#[test]
+#[ignore]
+fn figures_curves() {
+    use brdfpack::codec::search::Evaluator;
+    let mut cases: Vec<(String, Table)> = Vec::new();
+    if wanted("ggx-au-0.2", "curves") {
+        cases.push(("ggx-au-0.2".into(), testdata::ggx_merl(0.2)));
+    }
+    for m in ["gold-metallic-paint", "white-diffuse-bball"] {
+        if wanted(m, "curves")
+            && let Some(t) = testdata::shared_merl(m)
+        {
+            cases.push((m.to_string(), t));
+        }
+    }
+    if wanted("ward", "curves") {
+        let g = parse_grid_spec("halfdiff4:64").unwrap();
+        let src = testdata::WardAniso::new(0.05, 0.1, 0.1, 0.3);
+        cases.push((
+            "ward halfdiff4:64".into(),
+            tabulate(&src, &g, &Default::default()).unwrap(),
+        ));
+    }
+    let set = SampleSet::uniform(65_536, 1);
+    for (name, t) in &cases {
+        let ev = Evaluator::new(t, &set).unwrap();
+        for step in [0.03, 0.1, 0.3, 1.0] {
+            for coding in ["coding=zstd", "deadzone=0.5", "deadzone=0.75"] {
+                let spec = CodecRequest::parse(&format!("dct:step={step},{coding}"))
+                    .unwrap()
+                    .resolve(t)
+                    .unwrap();
+                let m = ev.measure(&spec).unwrap();
+                println!(
+                    "CURVE {name} step={step} {coding}: payload {} B log_rmse {:.4e} p99_rel_core {:.4e}",
+                    m.payload.len(),
+                    m.metrics.log_rmse,
+                    m.metrics.p99_rel_core
+                );
+            }
+        }
     }
 }

@@ -358,7 +358,10 @@ fn encode_component(rc: &mut RangeEncoder, model: &mut Model, comp: usize, c: &C
             }
             if e > 0 {
                 let top = (v >> (e - 1)) & 1 == 1;
-                rc.encode(&mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize], top);
+                rc.encode(
+                    &mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize],
+                    top,
+                );
                 for k in (0..e - 1).rev() {
                     rc.encode_direct((v >> k) & 1 == 1);
                 }
@@ -402,8 +405,7 @@ fn decode_component(
             }
             let mut v: u64 = 1;
             if e > 0 {
-                let top =
-                    rc.decode(&mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize]);
+                let top = rc.decode(&mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize]);
                 v = (v << 1) | top as u64;
                 for _ in 0..e - 1 {
                     v = (v << 1) | rc.decode_direct() as u64;

@@ -445,10 +445,22 @@ pub fn dct_coefficients_for(
         .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
         .collect();
     let order = fill_order(table.grid().kind());
-    domain::fill_refined(&mut planes, &dims, table.valid(), &order, iterations, |k, p| {
-        let q = coefcode::quantize_deadzone(&dct::forward(p, &dims), &dims, steps[k], coding.deadzone);
-        dct::inverse(&q, &dims, steps[k])
-    });
+    domain::fill_refined(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &order,
+        iterations,
+        |k, p| {
+            let q = coefcode::quantize_deadzone(
+                &dct::forward(p, &dims),
+                &dims,
+                steps[k],
+                coding.deadzone,
+            );
+            dct::inverse(&q, &dims, steps[k])
+        },
+    );
     Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
 }
 
@@ -1007,8 +1019,14 @@ mod tests {
             ("lossless:level=99", "level"),
             ("f16:bogus=1", "bogus"),
             ("brotli", "unknown codec"),
-            ("dct:step=0.1,level=3", "level applies to dct with coding=zstd"),
-            ("dct:step=0.1,coding=zstd,refine=2", "refine applies to dct with coding=context"),
+            (
+                "dct:step=0.1,level=3",
+                "level applies to dct with coding=zstd",
+            ),
+            (
+                "dct:step=0.1,coding=zstd,refine=2",
+                "refine applies to dct with coding=context",
+            ),
             ("dct:step=0.1,deadzone=0.2", "deadzone"),
             ("dct:step=0.1,refine=21", "refine"),
             ("dct:step=0.1,coding=huffman", "coding"),
@@ -1026,7 +1044,10 @@ mod tests {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             let payload = spec.encode(&t).unwrap();
             for cut in [0, 1, payload.len() / 2, payload.len() - 1] {
-                assert!(spec.decode(&payload[..cut], &layout).is_err(), "{s} cut {cut}");
+                assert!(
+                    spec.decode(&payload[..cut], &layout).is_err(),
+                    "{s} cut {cut}"
+                );
             }
             let mut bad = spec.clone();
             match &mut bad {

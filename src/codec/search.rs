@@ -11,9 +11,7 @@ use super::coefcode::{self, ContextCoding, DEFAULT_DEADZONE};
 use super::domain::Domain;
 use super::entropy::Zstd;
 use super::transform::Transform;
-use super::{
-    CodecRequest, CodecSpec, CurveRequest, Layout, dct, dct_coefficients, transform_for,
-};
+use super::{CodecRequest, CodecSpec, CurveRequest, Layout, dct, dct_coefficients, transform_for};
 use crate::check::{BOUNDABLE, Metrics, SampleSet, evaluate_pairs, metrics};
 use crate::table::{Interp, InterpolatedTable, Table};
 use crate::{Error, Result};
@@ -260,7 +258,14 @@ impl State<'_> {
 
     /// Bisection in log(step) over [lo, hi] for the largest accepted step (the error grows
     /// with the step); `None` when even `lo` is not accepted.
-    fn bisect<F>(&mut self, lo: f64, hi: f64, halvings: usize, what: &str, mut f: F) -> Result<Option<f64>>
+    fn bisect<F>(
+        &mut self,
+        lo: f64,
+        hi: f64,
+        halvings: usize,
+        what: &str,
+        mut f: F,
+    ) -> Result<Option<f64>>
     where
         F: FnMut(f64) -> Result<Measured>,
     {
@@ -292,12 +297,12 @@ struct EpsCandidate {
 /// Finds the smallest encoding of `table` meeting `budget` on `set` (and, for a `uniform` set,
 /// on the held-out set with the next seed; see [`MARGIN`]).
 ///
-/// 1. DCT with context coding (dead zone 0.75) for every ε: bisection of the step.
-/// 1b. DCT with zstd coding (varints) at the best ε of phase 1 (every ε when none met the
-///     budget): on very peaky tables (GGX α < 1e-3) it is the smaller one.
-/// 2. Around the best context-coded step: other dead zones and refined fills, each with a local
-///    bisection of the step.
-/// 3. The lossless chain when nothing lossy is accepted.
+/// - Phase 1: DCT with context coding (dead zone 0.75) for every ε, bisection of the step.
+/// - Phase 1b: DCT with zstd coding (varints) at the best ε of phase 1 (every ε when none met
+///   the budget): on very peaky tables (GGX α < 1e-3) it is the smaller one.
+/// - Phase 2: around the best context-coded step, other dead zones and refined fills, each
+///   with a local bisection of the step.
+/// - Phase 3: the lossless chain when nothing lossy is accepted.
 pub fn search(table: &Table, budget: &Budget, set: &SampleSet, level: i32) -> Result<SearchResult> {
     let held = held_out_set(set);
     let ev = match &held {
@@ -322,18 +327,19 @@ pub fn search(table: &Table, budget: &Budget, set: &SampleSet, level: i32) -> Re
             coefs,
         });
     }
-    let context_spec = |e: &EpsCandidate, step: f64, deadzone: f64, refine: u32| CodecSpec::DctContext {
-        domain: if refine > 0 {
-            Domain::FillRefined { iterations: refine }
-        } else {
-            Domain::FillInvalid
-        },
-        transform: e.transform.clone(),
-        dct: dct::DctStage {
-            step: vec![step; c],
-        },
-        coding: ContextCoding { deadzone },
-    };
+    let context_spec =
+        |e: &EpsCandidate, step: f64, deadzone: f64, refine: u32| CodecSpec::DctContext {
+            domain: if refine > 0 {
+                Domain::FillRefined { iterations: refine }
+            } else {
+                Domain::FillInvalid
+            },
+            transform: e.transform.clone(),
+            dct: dct::DctStage {
+                step: vec![step; c],
+            },
+            coding: ContextCoding { deadzone },
+        };
     // Phase 1.
     let mut best_context: Option<(usize, f64, usize)> = None;
     for (i, e) in cands.iter().enumerate() {
@@ -386,7 +392,11 @@ pub fn search(table: &Table, budget: &Budget, set: &SampleSet, level: i32) -> Re
     if let Some((i, step, _)) = best_context {
         let e = &cands[i];
         for (deadzone, refine) in REFINEMENTS {
-            let deadzone = if deadzone > 0.0 { deadzone } else { DEFAULT_DEADZONE };
+            let deadzone = if deadzone > 0.0 {
+                deadzone
+            } else {
+                DEFAULT_DEADZONE
+            };
             let what = format!(
                 "dct context eps={} deadzone={deadzone} refine={refine}",
                 e.eps_rel
@@ -394,7 +404,12 @@ pub fn search(table: &Table, budget: &Budget, set: &SampleSet, level: i32) -> Re
             st.bisect(step / 2.0, step * 2.0, LOCAL_BISECTIONS, &what, |s| {
                 let spec = context_spec(e, s, deadzone, refine);
                 let payload = if refine == 0 {
-                    coefcode::encode(&coefcode::quantize_all(&e.coefs, &dims, &vec![s; c], deadzone))
+                    coefcode::encode(&coefcode::quantize_all(
+                        &e.coefs,
+                        &dims,
+                        &vec![s; c],
+                        deadzone,
+                    ))
                 } else {
                     spec.encode(table)?
                 };
