@@ -295,8 +295,10 @@ pub fn codec(data: &[u8]) {
     let again = CodecRequest::parse(&text)
         .unwrap_or_else(|e| panic!("codec {spec:?}: its text {text:?} fails: {e}"));
     assert_eq!(again, req, "codec {spec:?}: text {text:?}");
-    let level = req.level().min(3);
-    let req = req.with_level(level);
+    let req = match req.level() {
+        Some(level) => req.with_level(level.min(3)),
+        None => req,
+    };
     let t = small_table();
     let resolved = req
         .resolve(t)

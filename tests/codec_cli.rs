@@ -37,7 +37,11 @@ fn compress_with_a_budget_writes_a_file_that_meets_it() {
         .assert()
         .success();
     let stdout = String::from_utf8(a.get_output().stdout.clone()).unwrap();
-    assert!(stdout.contains("\"kind\":\"dct\""), "{stdout}");
+    assert!(stdout.contains("\"kind\":\"dct_context\""), "{stdout}");
+    assert!(
+        stdout.contains("held-out set (uniform, 4096 pairs, seed 2"),
+        "{stdout}"
+    );
     let log_rmse: f64 = stdout
         .split("log_rmse ")
         .nth(1)

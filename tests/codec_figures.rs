@@ -32,6 +32,9 @@ fn decode_seconds(spec: &CodecSpec, payload: &[u8], t: &Table, n: usize) -> f64 
 }
 
 fn lossless_case(name: &str, t: &Table) {
+    if !wanted(name, "lossless") {
+        return;
+    }
     let z19 = zstd19_raw(t);
     let spec = CodecRequest::parse("lossless").unwrap().resolve(t).unwrap();
     let file = native::to_bytes(t, &spec).unwrap();
@@ -63,7 +66,31 @@ fn lossless_case(name: &str, t: &Table) {
     );
 }
 
+/// `BRDFPACK_FIGURES=gold-metallic-paint:production,ggx:preview` runs only the cases whose
+/// name contains a listed name and whose budget (or `lossless`) is the listed one; unset runs
+/// every case.
+fn wanted(name: &str, what: &str) -> bool {
+    match std::env::var("BRDFPACK_FIGURES") {
+        Err(_) => true,
+        Ok(f) => f.split(',').any(|item| {
+            let (n, w) = item.split_once(':').unwrap_or((item, what));
+            name.contains(n.trim()) && w.trim() == what
+        }),
+    }
+}
+
+fn budget_name(budget: &str) -> &'static str {
+    if budget == PREVIEW {
+        "preview"
+    } else {
+        "production"
+    }
+}
+
 fn budget_case(name: &str, t: &Table, budget: &str, max_file: usize) -> bool {
+    if !wanted(name, budget_name(budget)) {
+        return true;
+    }
     let b = Budget::parse(budget).unwrap();
     let set = SampleSet::uniform(65_536, 1);
     let t0 = Instant::now();
@@ -93,23 +120,37 @@ fn budget_case(name: &str, t: &Table, budget: &str, max_file: usize) -> bool {
             table: native::from_bytes(&file, Path::new("x.bpk")).unwrap(),
             interp: Interp::Linear,
         },
-        &SampleSet::uniform(65_536, 2),
+        &SampleSet::uniform(65_536, 3),
     )
     .unwrap();
     let m = &r.best.metrics;
+    let h = r
+        .best
+        .held_out
+        .as_ref()
+        .expect("a uniform set has a held-out set");
     let i = &rep.combined;
+    let chosen = r
+        .trials
+        .iter()
+        .rev()
+        .find(|x| x.meets && x.bytes == r.best.payload.len())
+        .map_or("?", |x| x.description.as_str());
     let secs = decode_seconds(&r.best.spec, &r.best.payload, t, 3);
     let gbs = (t.data().len() * 4) as f64 / secs / 1e9;
     println!(
         "BUDGET {name} [{budget}]: file {} B (payload {} B, limit {max_file}) log_rmse {:.4e} \
-         p99_rel_core {:.4e} (recomputed {:.4e} / {:.4e}; held-out seed 2: {:.4e} / {:.4e}); \
-         negative {} nonfinite {}; decode {:.1} ms = {gbs:.2} GB/s; search {search_s:.1} s, {} trials; {}",
+         p99_rel_core {:.4e} (recomputed {:.4e} / {:.4e}; search held-out seed 2: {:.4e} / \
+         {:.4e}; unseen seed 3: {:.4e} / {:.4e}); negative {} nonfinite {}; decode {:.1} ms = \
+         {gbs:.2} GB/s; search {search_s:.1} s, {} trials; chosen: {chosen}; {}",
         file.len(),
         r.best.payload.len(),
         m.log_rmse,
         m.p99_rel_core,
         i.log_rmse,
         i.p99_rel_core,
+        h.log_rmse,
+        h.p99_rel_core,
         held.combined.log_rmse,
         held.combined.p99_rel_core,
         i.negative,
@@ -169,8 +210,17 @@ fn figures_ward_halfdiff4() {
 #[test]
 #[ignore]
 fn figures_tiny_alpha_packs_without_inf() {
+    if !wanted("ggx-au-0.0005", "codecs") {
+        return;
+    }
     let t = testdata::ggx_merl(0.0005);
-    for s in ["lossless", "f16", "f16:curve=linear", "dct:step=0.01"] {
+    for s in [
+        "lossless",
+        "f16",
+        "f16:curve=linear",
+        "dct:step=0.01,coding=zstd",
+        "dct:step=0.01",
+    ] {
         let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
         let file = native::to_bytes(&t, &spec).unwrap();
         let back = native::from_bytes(&file, Path::new("x.bpk")).unwrap();
@@ -180,5 +230,53 @@ fn figures_tiny_alpha_packs_without_inf() {
             "{s}"
         );
         println!("ALPHA 5e-4 {s}: {} B, max decoded {max:.4e}", file.len());
+    }
+}
+
+/// Bytes-vs-error curves of docs/compression.md: the same DCT coefficients (log ε = 1e-3 of
+/// the mean, KLT colour, plain fill) coded with varints + zstd-19 (the plain-DCT baseline) and
+/// with the context coder (dead zone 0.5: the same coefficients; and the default 0.75), at a
+/// ladder of steps. Payload bytes; errors on `uniform` 65,536 pairs seed 1.
+#[test]
+#[ignore]
+fn figures_curves() {
+    use brdfpack::codec::search::Evaluator;
+    let mut cases: Vec<(String, Table)> = Vec::new();
+    if wanted("ggx-au-0.2", "curves") {
+        cases.push(("ggx-au-0.2".into(), testdata::ggx_merl(0.2)));
+    }
+    for m in ["gold-metallic-paint", "white-diffuse-bball"] {
+        if wanted(m, "curves")
+            && let Some(t) = testdata::shared_merl(m)
+        {
+            cases.push((m.to_string(), t));
+        }
+    }
+    if wanted("ward", "curves") {
+        let g = parse_grid_spec("halfdiff4:64").unwrap();
+        let src = testdata::WardAniso::new(0.05, 0.1, 0.1, 0.3);
+        cases.push((
+            "ward halfdiff4:64".into(),
+            tabulate(&src, &g, &Default::default()).unwrap(),
+        ));
+    }
+    let set = SampleSet::uniform(65_536, 1);
+    for (name, t) in &cases {
+        let ev = Evaluator::new(t, &set).unwrap();
+        for step in [0.03, 0.1, 0.3, 1.0] {
+            for coding in ["coding=zstd", "deadzone=0.5", "deadzone=0.75"] {
+                let spec = CodecRequest::parse(&format!("dct:step={step},{coding}"))
+                    .unwrap()
+                    .resolve(t)
+                    .unwrap();
+                let m = ev.measure(&spec).unwrap();
+                println!(
+                    "CURVE {name} step={step} {coding}: payload {} B log_rmse {:.4e} p99_rel_core {:.4e}",
+                    m.payload.len(),
+                    m.metrics.log_rmse,
+                    m.metrics.p99_rel_core
+                );
+            }
+        }
     }
 }

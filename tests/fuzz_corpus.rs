@@ -56,7 +56,7 @@ fn seed_files_decode() {
         brdfpack::grid::Grid::merl()
     );
     let req = brdfpack::codec::CodecRequest::parse(&text("codec/seed02")).unwrap();
-    assert_eq!(req.level(), 3);
+    assert_eq!(req.level(), Some(3));
 }
 
 /// The `eval` seeds reach the row writer: their first lines evaluate (the rest of a seed may

@@ -122,5 +122,19 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
         m.nonfinite,
         m.negative
     );
+    if let Some(h) = &measured.held_out {
+        println!(
+            "held-out set (uniform, {} pairs, seed {}; the search accepts a candidate only when \
+             it meets every bound × {} on seed {} and every bound here):",
+            a.samples,
+            a.seed.wrapping_add(1),
+            crate::codec::search::MARGIN,
+            a.seed
+        );
+        println!(
+            "  log_rmse {:.4e}  p99_rel_core {:.4e}  rel_rmse_core {:.4e}  rmse {:.4e}  max_rel {:.4e}",
+            h.log_rmse, h.p99_rel_core, h.rel_rmse_core, h.rmse, h.max_rel
+        );
+    }
     Ok(0)
 }

@@ -5,13 +5,15 @@
 //! the grid or stored beside the data); (2) [`transform`] — a curve (linear or log(ε + x)) and
 //! an optional colour decorrelation; (3) [`quantize`] — f32 (lossless), f16 or k-bit uniform;
 //! (4) [`predict`] — residuals from grid neighbours, byte-plane shuffle; (5) [`entropy`] —
-//! zstd; (6) [`dct`] — transform coding of the whole table with quantized coefficients.
+//! zstd, or for DCT coefficients [`coefcode`], a context-adaptive range coder; (6) [`dct`] —
+//! transform coding of the whole table with quantized coefficients.
 //!
 //! A [`CodecSpec`] is the fully resolved chain (every data-derived parameter written out) and
 //! is recorded in the file header, so any file decodes with no flags. A [`CodecRequest`] is
 //! what a user asks for (`--codec dct:step=0.02`); [`CodecRequest::resolve`] turns it into a
 //! spec for a given table. [`search`] picks the smallest spec meeting an error budget.
 
+pub mod coefcode;
 pub mod dct;
 pub mod domain;
 pub mod entropy;
@@ -68,6 +70,17 @@ pub enum CodecSpec {
         transform: Transform,
         dct: dct::DctStage,
         entropy: Zstd,
+    },
+    /// Lossy transform coding, context-coded: as `Dct` (the decoder is the same up to the
+    /// coefficients), with dead-zone quantization, optionally a refined fill of the invalid
+    /// cells (`domain` `fill_refined`, encoder only), and the coefficients range-coded with
+    /// adaptive contexts ([`coefcode`]). Typically 1.3–2× smaller than `Dct` at the same error;
+    /// larger on very peaky tables (GGX α < 1e-3), where the search keeps `Dct`.
+    DctContext {
+        domain: Domain,
+        transform: Transform,
+        dct: dct::DctStage,
+        coding: coefcode::ContextCoding,
     },
 }
 
@@ -171,7 +184,7 @@ impl CodecSpec {
                     Quantizer::Uniform { .. } => unreachable!("uniform has a bound"),
                 },
             },
-            CodecSpec::Dct { dct, .. } => format!(
+            CodecSpec::Dct { dct, .. } | CodecSpec::DctContext { dct, .. } => format!(
                 "the table in the mean-square sense: RMS error ≈ step/√12 = {:.3e} in the \
                  transformed space (no per-sample bound)",
                 dct.step.iter().fold(0.0f64, |m, s| m.max(*s)) / 12f64.sqrt()
@@ -188,6 +201,16 @@ impl CodecSpec {
     fn validate(&self, layout: &Layout) -> Result<()> {
         let c = layout.channels;
         let d = layout.grid.axes().len();
+        let check_dct = |transform: &Transform, dct: &dct::DctStage| {
+            transform.validate(c)?;
+            if dct.step.len() != c || dct.step.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+                return Err(Error::input(format!(
+                    "dct steps {:?}: need {c} finite positive values",
+                    dct.step
+                )));
+            }
+            Ok(())
+        };
         let check_pred = |p: &Predictor| {
             if p.orders.len() != d {
                 return Err(Error::input(format!(
@@ -210,15 +233,23 @@ impl CodecSpec {
                 quantize.validate(c)?;
                 check_pred(predict)
             }
-            CodecSpec::Dct { transform, dct, .. } => {
-                transform.validate(c)?;
-                if dct.step.len() != c || dct.step.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            CodecSpec::Dct { transform, dct, .. } => check_dct(transform, dct),
+            CodecSpec::DctContext {
+                domain,
+                transform,
+                dct,
+                coding,
+            } => {
+                check_dct(transform, dct)?;
+                if let Domain::FillRefined { iterations } = domain
+                    && *iterations > domain::MAX_REFINE
+                {
                     return Err(Error::input(format!(
-                        "dct steps {:?}: need {c} finite positive values",
-                        dct.step
+                        "dct domain: {iterations} refinement passes (at most {})",
+                        domain::MAX_REFINE
                     )));
                 }
-                Ok(())
+                coding.validate()
             }
         }
     }
@@ -278,6 +309,23 @@ impl CodecSpec {
                     .map(|(p, &s)| dct::quantize(p, &dims, s))
                     .collect();
                 entropy.compress(&dct::serialize(&comps))
+            }
+            CodecSpec::DctContext {
+                domain,
+                transform,
+                dct: stage,
+                coding,
+            } => {
+                let coefs = dct_coefficients_for(table, transform, *domain, &stage.step, coding)?;
+                for (p, &s) in coefs.iter().zip(&stage.step) {
+                    dct::check_range(p, s)?;
+                }
+                Ok(coefcode::encode(&coefcode::quantize_all(
+                    &coefs,
+                    &dims,
+                    &stage.step,
+                    coding.deadzone,
+                )))
             }
         }
     }
@@ -356,6 +404,17 @@ impl CodecSpec {
                 idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, &mut out);
                 Ok(out)
             }
+            CodecSpec::DctContext {
+                transform,
+                dct: stage,
+                ..
+            } => {
+                let comps = coefcode::decode(payload, &dims, c)?;
+                let mut out = vec![0f32; values];
+                let fin = simd::Finisher::new(transform, c);
+                idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, &mut out);
+                Ok(out)
+            }
         }
     }
 }
@@ -375,6 +434,47 @@ pub fn dct_coefficients(table: &Table, transform: &Transform) -> Result<Vec<Vec<
         &dims,
         table.valid(),
         &fill_order(table.grid().kind()),
+    );
+    Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
+}
+
+/// The DCT coefficients for a context-coded spec: with `Domain::FillRefined` the invalid
+/// cells are refilled `iterations` times with the decoded table of the quantized coefficients
+/// (at these `steps` and dead zone), which makes the filled table cheaper to code; otherwise
+/// as [`dct_coefficients`].
+pub fn dct_coefficients_for(
+    table: &Table,
+    transform: &Transform,
+    domain: Domain,
+    steps: &[f64],
+    coding: &coefcode::ContextCoding,
+) -> Result<Vec<Vec<f64>>> {
+    let Domain::FillRefined { iterations } = domain else {
+        return dct_coefficients(table, transform);
+    };
+    let c = table.channels().len();
+    let dims = table.grid().shape();
+    let cells = table.grid().cells();
+    let z = transform.forward_all(table.data(), c);
+    let mut planes: Vec<Vec<f64>> = (0..c)
+        .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
+        .collect();
+    let order = fill_order(table.grid().kind());
+    domain::fill_refined(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &order,
+        iterations,
+        |k, p| {
+            let q = coefcode::quantize_deadzone(
+                &dct::forward(p, &dims),
+                &dims,
+                steps[k],
+                coding.deadzone,
+            );
+            dct::inverse(&q, &dims, steps[k])
+        },
     );
     Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
 }
@@ -413,8 +513,27 @@ pub enum CodecRequest {
         curve: CurveRequest,
         step: f64,
         colour: bool,
-        level: i32,
+        coding: DctCoding,
     },
+}
+
+/// How DCT coefficients are entropy-coded.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DctCoding {
+    /// Varints in a frequency box + zstd (`CodecSpec::Dct`, the first `dct` files).
+    Zstd { level: i32 },
+    /// Dead-zone quantization, `refine` passes of [`domain::fill_refined`], context range
+    /// coding (`CodecSpec::DctContext`).
+    Context { deadzone: f64, refine: u32 },
+}
+
+impl Default for DctCoding {
+    fn default() -> Self {
+        DctCoding::Context {
+            deadzone: coefcode::DEFAULT_DEADZONE,
+            refine: 0,
+        }
+    }
 }
 
 /// Default log ε relative to a channel's mean: the metrics' ε (spec/metrics.md) is 1e-3 of the
@@ -436,6 +555,7 @@ impl CodecRequest {
         let bad = |k: &str, v: &str, want: &str| {
             Error::input(format!("codec {spec:?}: {k} = {v:?}, expected {want}"))
         };
+        let level_given = kv.contains_key("level");
         let mut take = |k: &str| kv.remove(k);
         let level = match take("level") {
             None => 19,
@@ -529,11 +649,59 @@ impl CodecRequest {
                         _ => return Err(bad("step", &v, "a positive number")),
                     },
                 };
+                let coding = match take("coding").as_deref() {
+                    None | Some("context") => {
+                        if level_given {
+                            return Err(Error::input(format!(
+                                "codec {spec:?}: level applies to dct with coding=zstd only"
+                            )));
+                        }
+                        let (lo, hi) = coefcode::DEADZONE_RANGE;
+                        let deadzone = match take("deadzone") {
+                            None => coefcode::DEFAULT_DEADZONE,
+                            Some(v) => match v.parse::<f64>() {
+                                Ok(d) if (lo..=hi).contains(&d) => d,
+                                _ => {
+                                    return Err(bad(
+                                        "deadzone",
+                                        &v,
+                                        &format!("a number of steps in {lo}..={hi}"),
+                                    ));
+                                }
+                            },
+                        };
+                        let refine = match take("refine") {
+                            None => 0,
+                            Some(v) => match v.parse::<u32>() {
+                                Ok(n) if n <= domain::MAX_REFINE => n,
+                                _ => {
+                                    return Err(bad(
+                                        "refine",
+                                        &v,
+                                        &format!("an integer in 0..={}", domain::MAX_REFINE),
+                                    ));
+                                }
+                            },
+                        };
+                        DctCoding::Context { deadzone, refine }
+                    }
+                    Some("zstd") => {
+                        for k in ["deadzone", "refine"] {
+                            if take(k).is_some() {
+                                return Err(Error::input(format!(
+                                    "codec {spec:?}: {k} applies to dct with coding=context only"
+                                )));
+                            }
+                        }
+                        DctCoding::Zstd { level }
+                    }
+                    Some(v) => return Err(bad("coding", v, "context or zstd")),
+                };
                 CodecRequest::Dct {
                     curve,
                     step,
                     colour,
-                    level,
+                    coding,
                 }
             }
             _ => {
@@ -632,15 +800,31 @@ impl CodecRequest {
                 curve,
                 step,
                 colour,
-                level,
-            } => CodecSpec::Dct {
-                domain: Domain::FillInvalid,
-                transform: transform_for(table, *curve, *colour),
-                dct: dct::DctStage {
+                coding,
+            } => {
+                let transform = transform_for(table, *curve, *colour);
+                let dct = dct::DctStage {
                     step: vec![*step; c],
-                },
-                entropy: Zstd { level: *level },
-            },
+                };
+                match *coding {
+                    DctCoding::Zstd { level } => CodecSpec::Dct {
+                        domain: Domain::FillInvalid,
+                        transform,
+                        dct,
+                        entropy: Zstd { level },
+                    },
+                    DctCoding::Context { deadzone, refine } => CodecSpec::DctContext {
+                        domain: if refine > 0 {
+                            Domain::FillRefined { iterations: refine }
+                        } else {
+                            Domain::FillInvalid
+                        },
+                        transform,
+                        dct,
+                        coding: coefcode::ContextCoding { deadzone },
+                    },
+                }
+            }
         })
     }
 }
@@ -758,6 +942,10 @@ mod tests {
             "uniform:bits=8,curve=linear,colour=none",
             "dct:step=0.001",
             "dct:step=0.01,curve=linear,colour=none",
+            "dct:step=0.001,coding=zstd",
+            "dct:step=0.01,coding=zstd,level=3,colour=none",
+            "dct:step=0.002,deadzone=1.5,refine=3",
+            "dct:step=0.01,coding=context,curve=linear,refine=1",
         ] {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             let json = serde_json::to_string(&spec).unwrap();
@@ -797,9 +985,9 @@ mod tests {
         assert_eq!(fast.len(), slow.len());
         let (curve, exact) = match spec {
             CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. } => (None, true),
-            CodecSpec::Quantized { transform, .. } | CodecSpec::Dct { transform, .. } => {
-                (Some(&transform.curve), false)
-            }
+            CodecSpec::Quantized { transform, .. }
+            | CodecSpec::Dct { transform, .. }
+            | CodecSpec::DctContext { transform, .. } => (Some(&transform.curve), false),
         };
         let c = layout.channels;
         for (i, (a, b)) in fast.iter().zip(&slow).enumerate() {
@@ -905,6 +1093,17 @@ mod tests {
             ("lossless:level=99", "level"),
             ("f16:bogus=1", "bogus"),
             ("brotli", "unknown codec"),
+            (
+                "dct:step=0.1,level=3",
+                "level applies to dct with coding=zstd",
+            ),
+            (
+                "dct:step=0.1,coding=zstd,refine=2",
+                "refine applies to dct with coding=context",
+            ),
+            ("dct:step=0.1,deadzone=0.2", "deadzone"),
+            ("dct:step=0.1,refine=21", "refine"),
+            ("dct:step=0.1,coding=huffman", "coding"),
         ] {
             let e = CodecRequest::parse(s).unwrap_err().to_string();
             assert!(e.contains(want), "{s}: {e}");
@@ -914,20 +1113,42 @@ mod tests {
     #[test]
     fn hostile_headers_and_payloads_are_errors_not_panics() {
         let t = small_table();
-        let spec = CodecRequest::parse("dct:step=0.01")
-            .unwrap()
-            .resolve(&t)
-            .unwrap();
-        let payload = spec.encode(&t).unwrap();
         let layout = Layout::of(&t);
-        for cut in [0, 1, payload.len() / 2, payload.len() - 1] {
-            assert!(spec.decode(&payload[..cut], &layout).is_err());
+        for s in ["dct:step=0.01", "dct:step=0.01,coding=zstd"] {
+            let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+            let payload = spec.encode(&t).unwrap();
+            for cut in [0, 1, payload.len() / 2, payload.len() - 1] {
+                assert!(
+                    spec.decode(&payload[..cut], &layout).is_err(),
+                    "{s} cut {cut}"
+                );
+            }
+            let mut bad = spec.clone();
+            match &mut bad {
+                CodecSpec::Dct { dct, .. } | CodecSpec::DctContext { dct, .. } => {
+                    dct.step = vec![0.0; 3]
+                }
+                _ => unreachable!(),
+            }
+            assert!(bad.decode(&payload, &layout).is_err(), "{s}");
+            if let CodecSpec::DctContext { coding, domain, .. } = &spec {
+                for (dz, it) in [(9.0, 0), (0.75, 1000)] {
+                    let mut bad = spec.clone();
+                    if let CodecSpec::DctContext {
+                        coding: c,
+                        domain: d,
+                        ..
+                    } = &mut bad
+                    {
+                        *c = coefcode::ContextCoding { deadzone: dz };
+                        *d = Domain::FillRefined { iterations: it };
+                    }
+                    assert!(bad.decode(&payload, &layout).is_err(), "{dz} {it}");
+                }
+                assert_eq!(*domain, Domain::FillInvalid);
+                assert_eq!(coding.deadzone, coefcode::DEFAULT_DEADZONE);
+            }
         }
-        let mut bad = spec.clone();
-        if let CodecSpec::Dct { dct, .. } = &mut bad {
-            dct.step = vec![0.0; 3];
-        }
-        assert!(bad.decode(&payload, &layout).is_err());
         let lossless = CodecRequest::parse("lossless")
             .unwrap()
             .resolve(&t)

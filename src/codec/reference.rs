@@ -76,6 +76,19 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                 .collect();
             Ok(inverse_planes(transform, &planes, layout.valid, c))
         }
+        CodecSpec::DctContext {
+            transform,
+            dct: stage,
+            ..
+        } => {
+            let comps = super::coefcode::decode(payload, &dims, c)?;
+            let planes: Vec<Vec<f32>> = comps
+                .iter()
+                .zip(&stage.step)
+                .map(|(q, &s)| dct_inverse(q, &dims, s))
+                .collect();
+            Ok(inverse_planes(transform, &planes, layout.valid, c))
+        }
     }
 }
 

@@ -3,29 +3,43 @@
 //! in Rust's shortest round-trip notation), e.g. `dct:step=0.02,curve=log,eps=0.001,colour=klt,level=19`.
 
 use super::predict::{Predictor, Space};
-use super::{CodecRequest, CurveRequest};
+use super::{CodecRequest, CurveRequest, DctCoding};
 use std::fmt;
 
 impl CodecRequest {
-    /// The zstd level of the entropy stage.
-    pub fn level(&self) -> i32 {
+    /// The zstd level of the entropy stage; `None` for DCT context coding (no zstd).
+    pub fn level(&self) -> Option<i32> {
         match self {
             CodecRequest::ZstdF32 { level }
             | CodecRequest::Lossless { level, .. }
             | CodecRequest::F16 { level, .. }
             | CodecRequest::Uniform { level, .. }
-            | CodecRequest::Dct { level, .. } => *level,
+            | CodecRequest::Dct {
+                coding: DctCoding::Zstd { level },
+                ..
+            } => Some(*level),
+            CodecRequest::Dct {
+                coding: DctCoding::Context { .. },
+                ..
+            } => None,
         }
     }
 
-    /// The same request with another zstd level.
+    /// The same request with another zstd level (unchanged when it has no zstd stage).
     pub fn with_level(mut self, new: i32) -> CodecRequest {
         match &mut self {
             CodecRequest::ZstdF32 { level }
             | CodecRequest::Lossless { level, .. }
             | CodecRequest::F16 { level, .. }
             | CodecRequest::Uniform { level, .. }
-            | CodecRequest::Dct { level, .. } => *level = new,
+            | CodecRequest::Dct {
+                coding: DctCoding::Zstd { level },
+                ..
+            } => *level = new,
+            CodecRequest::Dct {
+                coding: DctCoding::Context { .. },
+                ..
+            } => {}
         }
         self
     }
@@ -89,11 +103,17 @@ impl fmt::Display for CodecRequest {
                 curve: c,
                 step,
                 colour: k,
-                level,
+                coding,
             } => {
                 write!(f, "dct:step={step:?},")?;
                 curve(f, c)?;
-                write!(f, ",colour={},level={level}", colour(*k))
+                write!(f, ",colour={}", colour(*k))?;
+                match coding {
+                    DctCoding::Zstd { level } => write!(f, ",coding=zstd,level={level}"),
+                    DctCoding::Context { deadzone, refine } => {
+                        write!(f, ",coding=context,deadzone={deadzone:?},refine={refine}")
+                    }
+                }
             }
         }
     }
@@ -118,8 +138,12 @@ mod tests {
                 "uniform:bits=12,curve=log,eps=1e-5,colour=klt,level=19",
             ),
             (
-                "dct: step = 1e300 ,colour=none,level=1",
-                "dct:step=1e300,curve=log,eps=0.001,colour=none,level=1",
+                "dct: step = 1e300 ,colour=none,coding=zstd,level=1",
+                "dct:step=1e300,curve=log,eps=0.001,colour=none,coding=zstd,level=1",
+            ),
+            (
+                "dct:step=0.5,refine=2",
+                "dct:step=0.5,curve=log,eps=0.001,colour=klt,coding=context,deadzone=0.75,refine=2",
             ),
         ] {
             let r = CodecRequest::parse(spec).unwrap();
@@ -130,13 +154,17 @@ mod tests {
 
     #[test]
     fn level_can_be_replaced() {
-        let r = CodecRequest::parse("dct:step=0.1,level=19").unwrap();
-        assert_eq!(r.level(), 19);
+        let r = CodecRequest::parse("dct:step=0.1,coding=zstd,level=19").unwrap();
+        assert_eq!(r.level(), Some(19));
         let r = r.with_level(3);
-        assert_eq!(r.level(), 3);
+        assert_eq!(r.level(), Some(3));
         assert_eq!(
             r.to_string(),
-            "dct:step=0.1,curve=log,eps=0.001,colour=klt,level=3"
+            "dct:step=0.1,curve=log,eps=0.001,colour=klt,coding=zstd,level=3"
         );
+        // Context coding has no zstd stage: no level to replace.
+        let r = CodecRequest::parse("dct:step=0.1").unwrap();
+        assert_eq!(r.level(), None);
+        assert_eq!(r.clone().with_level(3), r);
     }
 }

@@ -257,6 +257,8 @@ fn curve_impl(eps: Option<&[f32]>, c: usize, valid: &[bool], v: &mut [f32]) {
 /// decoded to −172), saturated at f32::MAX, NaN read as 0 (`max` drops NaN): never non-finite.
 #[inline(always)]
 fn linear_inverse(y: f32) -> f32 {
+    // Not `clamp`: it would keep NaN.
+    #[allow(clippy::manual_clamp)]
     y.max(0.0).min(f32::MAX)
 }
 
