@@ -1,7 +1,8 @@
 //! Files written before context coding existed still decode unchanged, and the `coding=zstd`
 //! path still writes them (fixtures/codec/README.md says how the fixtures were made).
 
-use brdfpack::codec::{CodecRequest, CodecSpec, Layout};
+use brdfpack::codec::transform::Curve;
+use brdfpack::codec::{CodecRequest, CodecSpec, Layout, reference};
 use brdfpack::io::native;
 use std::path::{Path, PathBuf};
 
@@ -22,18 +23,28 @@ fn an_old_dct_file_decodes_to_what_the_old_binary_decoded() {
         "{:?}",
         header.codec
     );
+    let eps = match &header.codec {
+        CodecSpec::Dct { transform, .. } => match &transform.curve {
+            Curve::Log { eps } => eps.clone(),
+            Curve::Linear => vec![0.0; 3],
+        },
+        _ => unreachable!(),
+    };
     let table = native::from_bytes(&old, &p).unwrap();
     let (q, dec) = fixture("ggx-dct-v1-decoded.bpk");
     let want = native::from_bytes(&dec, &q).unwrap();
     assert_eq!(table.data().len(), 8 * 8 * 16 * 3);
-    assert!(
-        table
-            .data()
-            .iter()
-            .zip(want.data())
-            .all(|(a, b)| a.to_bits() == b.to_bits()),
-        "decoded values changed"
-    );
+    // The fast decoder (src/codec/idct.rs: other summation order, vectorized exp) is not bit
+    // for bit the old one; it agrees within 5e-5 of ε + x, the bound src/codec/mod.rs's
+    // `assert_matches_reference` states (6× below the finest step's quantization noise). The
+    // bit-exact comparison with the old decoder is in the next test, on `codec::reference`.
+    for (i, (a, b)) in table.data().iter().zip(want.data()).enumerate() {
+        let tol = 5e-5 * (b.abs() as f64 + eps[i % 3]);
+        assert!(
+            ((a - b) as f64).abs() <= tol,
+            "value {i}: {a} vs the old binary's {b}"
+        );
+    }
 }
 
 #[test]
@@ -47,15 +58,18 @@ fn coding_zstd_writes_the_old_format_and_context_coding_is_smaller() {
         .resolve(&source)
         .unwrap();
     assert_eq!(spec, old_spec);
-    // Same payload: decoding it gives the old file's values bit for bit.
+    // Same payload: the old decoder (`codec::reference`) gives the old binary's values bit
+    // for bit.
     let payload = spec.encode(&source).unwrap();
-    let old_table = native::from_bytes(&old, &q).unwrap();
-    let dec = spec.decode(&payload, &Layout::of(&source)).unwrap();
+    let (d, want) = fixture("ggx-dct-v1-decoded.bpk");
+    let want = native::from_bytes(&want, &d).unwrap();
+    let slow = reference::decode(&spec, &payload, &Layout::of(&source)).unwrap();
     assert!(
-        dec.iter()
-            .zip(old_table.data())
+        slow.iter()
+            .zip(want.data())
             .all(|(a, b)| a.to_bits() == b.to_bits())
     );
+    let dec = spec.decode(&payload, &Layout::of(&source)).unwrap();
     // The default coding of `dct` is now the context coder, at the same step.
     let ctx = CodecRequest::parse("dct:step=0.01,deadzone=0.5")
         .unwrap()

@@ -725,6 +725,8 @@ const CODECS: &[&str] = &[
     "uniform:bits=10,curve=linear,colour=none",
     "dct:step=0.01",
     "dct:step=0.05,curve=linear",
+    "dct:step=0.01,coding=zstd",
+    "dct:step=0.02,deadzone=1.5,refine=2",
 ];
 
 fn tab(src: &dyn Brdf, grid: &str) -> Table {
@@ -758,7 +760,10 @@ fn spiky_table(grid: &str) -> Table {
 
 /// The largest magnitude of the table's valid components in the codec's transformed space.
 fn peak_transformed(t: &Table, spec: &CodecSpec) -> f64 {
-    let (CodecSpec::Dct { transform, .. } | CodecSpec::Quantized { transform, .. }) = spec else {
+    let (CodecSpec::Dct { transform, .. }
+    | CodecSpec::DctContext { transform, .. }
+    | CodecSpec::Quantized { transform, .. }) = spec
+    else {
         return 0.0;
     };
     let c = t.channels().len();
@@ -804,7 +809,9 @@ fn check_codec(orig: &Table, back: &Table, codec: &CodecSpec, what: &str) {
             }
             _ => unreachable!("uniform has a bound"),
         },
-        CodecSpec::Dct { transform, .. } => (transform, Box::new(|_, _| f64::INFINITY)),
+        CodecSpec::Dct { transform, .. } | CodecSpec::DctContext { transform, .. } => {
+            (transform, Box::new(|_, _| f64::INFINITY))
+        }
         _ => unreachable!("lossless handled above"),
     };
     let mut sq = 0.0;
@@ -862,7 +869,7 @@ fn tables_on_every_grid_through_every_codec() {
                     .resolve(t)
                     .unwrap_or_else(|e| panic!("{what}: resolve: {e}"));
                 let encoded = io::encode_table(t, &OutputFormat::Native(spec.clone()));
-                if let CodecSpec::Dct { dct, .. } = &spec {
+                if let CodecSpec::Dct { dct, .. } | CodecSpec::DctContext { dct, .. } = &spec {
                     // An orthonormal DCT coefficient is at most √cells × the largest value:
                     // below 2^30 steps the encoder must succeed, far above it (linear curve,
                     // 8e10 peaks) it must refuse rather than clamp the codes.

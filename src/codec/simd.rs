@@ -51,8 +51,8 @@ pub(crate) use dispatch;
 pub const EXP_MIN: f32 = -87.0;
 pub const EXP_MAX: f32 = 88.0;
 
-/// e^x in f32, within 1 ulp of the exact value on [EXP_MIN, EXP_MAX] (tested); x is clamped
-/// to that range (NaN reads as EXP_MIN). Cody–Waite reduction x = n ln2 + r, |r| ≤ ln2/2, and
+/// e^x in f32, within 1 ulp of the exact value on [EXP_MIN, EXP_MAX] (tested), subnormal
+/// below it and 0 below about −109 (NaN reads as EXP_MIN); x above EXP_MAX is clamped. Cody–Waite reduction x = n ln2 + r, |r| ≤ ln2/2, and
 /// the degree-6 minimax polynomial of Cephes `expf` (Moshier 1992), without FMA.
 #[inline(always)]
 pub fn exp_f32(x: f32) -> f32 {
@@ -62,6 +62,16 @@ pub fn exp_f32(x: f32) -> f32 {
     // ln2 split so that n·LN2_HI is exact for |n| ≤ 128 (LN2_HI has 9 significant bits).
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
+    // Below EXP_MIN the result is an f32 subnormal (down to e^−103.3): e^x = e^(x + 32 ln2)·2^−32,
+    // one rounding. Flushing to e^−87 instead decoded a 1e−41 sample of a dark log-curve table
+    // 1e3× too large (tests/hard_cases.rs).
+    let small = x < EXP_MIN;
+    let x = if small {
+        x + 32.0 * std::f32::consts::LN_2
+    } else {
+        x
+    };
+    let scale = if small { 2.328_306_4e-10 } else { 1.0 }; // 2^−32
     // Not `clamp`: it would keep NaN, and NaN must read as EXP_MIN.
     #[allow(clippy::manual_clamp)]
     let x = x.max(EXP_MIN).min(EXP_MAX);
@@ -78,7 +88,7 @@ pub fn exp_f32(x: f32) -> f32 {
     let y = p * (r * r) + r + 1.0;
     // 2^n from the integer in t's mantissa: n ∈ [−126, 127] here, a normal exponent.
     let e = (t.to_bits() as i32 - MAGIC.to_bits() as i32 + 127) << 23;
-    y * f32::from_bits(e as u32)
+    y * f32::from_bits(e as u32) * scale
 }
 
 /// Cells per block of [`Finisher::run`]: one AVX2 register of f32.
@@ -322,9 +332,24 @@ mod tests {
             assert_eq!(exp_f32(x), exp_f32(EXP_MAX));
             assert!(exp_f32(x).is_finite());
         }
-        for x in [-100.0f32, f32::NEG_INFINITY, f32::NAN] {
-            assert_eq!(exp_f32(x), exp_f32(EXP_MIN));
+        assert_eq!(exp_f32(f32::NAN), exp_f32(EXP_MIN));
+        for x in [-120.0f32, f32::NEG_INFINITY, -f32::MAX] {
+            assert_eq!(exp_f32(x), 0.0);
         }
         assert_eq!(exp_f32(0.0), 1.0);
+    }
+
+    #[test]
+    fn exp_reaches_the_subnormals() {
+        // Within 1 ulp of the correctly rounded f32 (a subnormal's ulp is 2^−149).
+        let mut x = -104.0f32;
+        while x < EXP_MIN {
+            let got = exp_f32(x);
+            let want = (x as f64).exp() as f32;
+            let ulp = (want.to_bits() as i64 - got.to_bits() as i64).abs();
+            assert!(ulp <= 1, "e^{x}: {got:e} vs {want:e}");
+            x += 0.013;
+        }
+        assert!(exp_f32(-100.0) > 0.0 && exp_f32(-100.0) < f32::MIN_POSITIVE);
     }
 }
