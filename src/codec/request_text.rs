@@ -1,6 +1,7 @@
 //! The text form of a [`CodecRequest`]: `Display` writes the canonical spec that
 //! [`CodecRequest::parse`] reads back to the same request (every option spelled out, numbers
-//! in Rust's shortest round-trip notation), e.g. `dct:step=0.02,curve=log,eps=0.001,colour=klt,level=19`.
+//! in Rust's shortest round-trip notation), e.g.
+//! `dct:step=0.02,curve=log,eps=0.001,colour=klt,coding=zstd,level=19`.
 
 use super::predict::{Predictor, Space};
 use super::{CodecRequest, CurveRequest, DctCoding};
