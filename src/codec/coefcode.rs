@@ -427,23 +427,6 @@ fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     out.push(v as u8);
 }
 
-fn get_varint(b: &[u8], pos: &mut usize) -> Result<u64> {
-    let mut v = 0u64;
-    for shift in (0..64).step_by(7) {
-        let byte = *b
-            .get(*pos)
-            .ok_or_else(|| Error::input("context-coded DCT stream: truncated box extent"))?;
-        *pos += 1;
-        v |= ((byte & 0x7f) as u64) << shift;
-        if byte & 0x80 == 0 {
-            return Ok(v);
-        }
-    }
-    Err(Error::input(
-        "context-coded DCT stream: varint longer than 64 bits",
-    ))
-}
-
 /// The payload: every component's box extents (varints), then one range-coded stream of every
 /// component's codes.
 pub fn encode(comps: &[Coefficients]) -> Vec<u8> {
@@ -465,20 +448,13 @@ pub fn encode(comps: &[Coefficients]) -> Vec<u8> {
 /// Inverse of [`encode`], checking every extent against the grid `dims`.
 pub fn decode(payload: &[u8], dims: &[usize], components: usize) -> Result<Vec<Coefficients>> {
     let mut pos = 0;
-    let mut extents = Vec::with_capacity(components);
-    for _ in 0..components {
-        let mut e = Vec::with_capacity(dims.len());
-        for &n in dims {
-            let v = get_varint(payload, &mut pos)?;
-            if v > n as u64 {
-                return Err(Error::input(format!(
-                    "context-coded DCT stream: box extent {v} exceeds the axis resolution {n}"
-                )));
-            }
-            e.push(v as usize);
-        }
-        extents.push(e);
-    }
+    let extents = dct::read_extents(
+        payload,
+        &mut pos,
+        dims,
+        components,
+        "context-coded DCT stream",
+    )?;
     let mut rc = RangeDecoder::new(&payload[pos..])?;
     let mut model = Model::new();
     let mut out = Vec::with_capacity(components);

@@ -199,18 +199,48 @@ fn put_varint(out: &mut Vec<u8>, mut v: u64) {
 }
 
 fn get_varint(b: &[u8], pos: &mut usize) -> Result<u64> {
+    get_varint_in(b, pos, "DCT stream")
+}
+
+/// A LEB128 varint of the stream named `what` (for its error messages).
+pub(crate) fn get_varint_in(b: &[u8], pos: &mut usize, what: &str) -> Result<u64> {
     let mut v = 0u64;
     for shift in (0..64).step_by(7) {
         let byte = *b
             .get(*pos)
-            .ok_or_else(|| Error::input("DCT stream: truncated varint"))?;
+            .ok_or_else(|| Error::input(format!("{what}: truncated varint")))?;
         *pos += 1;
         v |= ((byte & 0x7f) as u64) << shift;
         if byte & 0x80 == 0 {
             return Ok(v);
         }
     }
-    Err(Error::input("DCT stream: varint longer than 64 bits"))
+    Err(Error::input(format!("{what}: varint longer than 64 bits")))
+}
+
+/// The frequency box extents of `components` components, each checked against the grid.
+pub(crate) fn read_extents(
+    b: &[u8],
+    pos: &mut usize,
+    dims: &[usize],
+    components: usize,
+    what: &str,
+) -> Result<Vec<Vec<usize>>> {
+    let mut extents = Vec::with_capacity(components);
+    for _ in 0..components {
+        let mut e = Vec::with_capacity(dims.len());
+        for &n in dims {
+            let v = get_varint_in(b, pos, what)?;
+            if v > n as u64 {
+                return Err(Error::input(format!(
+                    "{what}: box extent {v} exceeds the axis resolution {n}"
+                )));
+            }
+            e.push(v as usize);
+        }
+        extents.push(e);
+    }
+    Ok(extents)
 }
 
 /// The raw (pre-entropy) stream: per component its extents then its zigzagged codes.
@@ -233,20 +263,7 @@ pub fn serialize(comps: &[Coefficients]) -> Vec<u8> {
 /// Inverse of [`serialize`], checking every extent against the grid.
 pub fn deserialize(b: &[u8], dims: &[usize], components: usize) -> Result<Vec<Coefficients>> {
     let mut pos = 0;
-    let mut extents = Vec::with_capacity(components);
-    for _ in 0..components {
-        let mut e = Vec::with_capacity(dims.len());
-        for &n in dims {
-            let v = get_varint(b, &mut pos)?;
-            if v > n as u64 {
-                return Err(Error::input(format!(
-                    "DCT stream: box extent {v} exceeds the axis resolution {n}"
-                )));
-            }
-            e.push(v as usize);
-        }
-        extents.push(e);
-    }
+    let extents = read_extents(b, &mut pos, dims, components, "DCT stream")?;
     let mut out = Vec::with_capacity(components);
     for extent in extents {
         let total: usize = if extent.contains(&0) {

@@ -422,13 +422,8 @@ impl CodecSpec {
 /// The forward DCT coefficients of every transformed component of `table` (invalid cells
 /// filled first). Exposed so the search can quantize one transform at many steps.
 pub fn dct_coefficients(table: &Table, transform: &Transform) -> Result<Vec<Vec<f64>>> {
-    let c = table.channels().len();
     let dims = table.grid().shape();
-    let cells = table.grid().cells();
-    let z = transform.forward_all(table.data(), c);
-    let mut planes: Vec<Vec<f64>> = (0..c)
-        .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
-        .collect();
+    let mut planes = component_planes(table, transform);
     domain::fill_invalid(
         &mut planes,
         &dims,
@@ -452,13 +447,8 @@ pub fn dct_coefficients_for(
     let Domain::FillRefined { iterations } = domain else {
         return dct_coefficients(table, transform);
     };
-    let c = table.channels().len();
     let dims = table.grid().shape();
-    let cells = table.grid().cells();
-    let z = transform.forward_all(table.data(), c);
-    let mut planes: Vec<Vec<f64>> = (0..c)
-        .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
-        .collect();
+    let mut planes = component_planes(table, transform);
     let order = fill_order(table.grid().kind());
     domain::fill_refined(
         &mut planes,
@@ -477,6 +467,16 @@ pub fn dct_coefficients_for(
         },
     );
     Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
+}
+
+/// The transformed table as one plane per component (cell-major data → planes).
+fn component_planes(table: &Table, transform: &Transform) -> Vec<Vec<f64>> {
+    let c = table.channels().len();
+    let cells = table.grid().cells();
+    let z = transform.forward_all(table.data(), c);
+    (0..c)
+        .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
+        .collect()
 }
 
 /// How a curve is chosen for a table.
