@@ -130,7 +130,8 @@ fn expand_along(
         let outer: usize = cur_dims[..a].iter().product();
         let inner: usize = cur_dims[a + 1..].iter().product();
         let basis = HalfBasis::new(n, e);
-        next.clear();
+        // No zeroing: both kernels write every output (stale values from the last pass are
+        // overwritten), and zeroing cost more than a pass on small boxes.
         next.resize(outer * n * inner, 0.0);
         if inner == 1 {
             expand_contiguous(&cur, &mut next, outer, &basis);
@@ -313,6 +314,12 @@ fn final_pass<const C: usize>(
                 t.run::<C, 8>(x0, &mut blocks, out);
                 x0 += 8;
             }
+            if x0 < inner && inner >= 8 {
+                // Overlapping last tile, as in `strided_impl` (finishing is per cell, so the
+                // overlapped cells are written again with the same values).
+                t.run::<C, 8>(inner - 8, &mut blocks, out);
+                x0 = inner;
+            }
             while x0 < inner {
                 t.run::<C, 1>(x0, &mut blocks, out);
                 x0 += 1;
@@ -445,10 +452,25 @@ fn contiguous_line(
         ev[t0..t0 + TILE_N].copy_from_slice(&te);
         od[t0..t0 + TILE_N].copy_from_slice(&to);
     }
-    for j in 0..h {
-        d[j] = ev[j] + od[j];
+    for ((d, e), o) in d[..h].iter_mut().zip(&ev[..h]).zip(&od[..h]) {
+        *d = e + o;
     }
-    for j in 0..n / 2 {
+    // The mirrored half in blocks of 8 written to ascending addresses (one reversed vector
+    // store instead of 8 scalar ones); same differences, same bits.
+    let m = n / 2;
+    let mut j = 0;
+    while j + 8 <= m {
+        let e: &[f32; 8] = ev[j..j + 8].try_into().expect("8 sums inside the scratch");
+        let o: &[f32; 8] = od[j..j + 8].try_into().expect("8 sums inside the scratch");
+        let hi: &mut [f32; 8] = (&mut d[n - j - 8..n - j])
+            .try_into()
+            .expect("8 outputs inside the line");
+        for l in 0..8 {
+            hi[7 - l] = e[l] - o[l];
+        }
+        j += 8;
+    }
+    for j in j..m {
         d[n - 1 - j] = ev[j] - od[j];
     }
 }
@@ -473,6 +495,12 @@ fn strided_impl(src: &[f32], dst: &mut [f32], outer: usize, inner: usize, b: &Ha
         while x0 + 8 <= inner {
             strided_tile::<8>(s, d, inner, x0, b, &even, &odd, inner, x0);
             x0 += 8;
+        }
+        if x0 < inner && inner >= 8 {
+            // The last lines as one 8-wide tile overlapping the previous one: the overlap is
+            // recomputed with the same operations, so rewritten with the same bits.
+            strided_tile::<8>(s, d, inner, inner - 8, b, &even, &odd, inner, inner - 8);
+            x0 = inner;
         }
         while x0 < inner {
             strided_tile::<1>(s, d, inner, x0, b, &even, &odd, inner, x0);

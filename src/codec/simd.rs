@@ -125,7 +125,10 @@ impl Finisher {
     }
 
     /// Cells `0..valid.len()` of the component runs `planes` into `out` (C values per cell).
-    /// Inlined into the caller's AVX2 or portable copy.
+    /// Inlined into the caller's AVX2 or portable copy. Whole blocks of [`LANES`] cells take a
+    /// fixed-size path (no variable-length copies, the validity applied as a bit mask, the
+    /// interleave through a fixed-size staging array), the tail the general one; both perform
+    /// the same arithmetic per cell, so the same bits.
     #[inline(always)]
     pub(crate) fn run<const C: usize>(&self, planes: [&[f32]; C], valid: &[bool], out: &mut [f32]) {
         debug_assert_eq!(self.c, C);
@@ -136,46 +139,80 @@ impl Finisher {
                 mm[i][k] = self.m[i * C + k];
             }
         }
-        let log = self.eps.is_some();
         let ee: [f32; C] = std::array::from_fn(|k| self.eps.as_ref().map_or(0.0, |e| e[k]));
+        let full = cells - cells % LANES;
         let mut f0 = 0;
-        while f0 < cells {
-            let n = LANES.min(cells - f0);
+        while f0 < full {
+            let z: [[f32; LANES]; C] = std::array::from_fn(|k| {
+                planes[k][f0..f0 + LANES]
+                    .try_into()
+                    .expect("a whole block inside the plane")
+            });
+            let y = self.block::<C>(&mm, &ee, z);
+            let ok: &[bool; LANES] = valid[f0..f0 + LANES]
+                .try_into()
+                .expect("a whole block inside the validity");
+            let mask: [u32; LANES] = std::array::from_fn(|l| (ok[l] as u32).wrapping_neg());
+            let mut staged = [[0f32; C]; LANES];
+            for l in 0..LANES {
+                for k in 0..C {
+                    staged[l][k] = f32::from_bits(y[k][l].to_bits() & mask[l]);
+                }
+            }
+            let dst = &mut out[f0 * C..(f0 + LANES) * C];
+            for (d, s) in dst.chunks_exact_mut(C).zip(&staged) {
+                d.copy_from_slice(s);
+            }
+            f0 += LANES;
+        }
+        if f0 < cells {
+            let n = cells - f0;
             let mut z = [[0f32; LANES]; C];
             for k in 0..C {
-                z[k][..n].copy_from_slice(&planes[k][f0..f0 + n]);
+                z[k][..n].copy_from_slice(&planes[k][f0..cells]);
             }
-            let mut y = [[0f32; LANES]; C];
-            for k in 0..C {
-                if self.colour {
-                    for l in 0..LANES {
-                        let mut s = 0f32;
-                        for i in 0..C {
-                            s += mm[i][k] * z[i][l];
-                        }
-                        y[k][l] = s;
-                    }
-                } else {
-                    y[k] = z[k];
-                }
-                if log {
-                    for l in 0..LANES {
-                        y[k][l] = (exp_f32(y[k][l]) - ee[k]).max(0.0);
-                    }
-                } else {
-                    for l in 0..LANES {
-                        y[k][l] = linear_inverse(y[k][l]);
-                    }
-                }
-            }
+            let y = self.block::<C>(&mm, &ee, z);
             for l in 0..n {
                 let ok = valid[f0 + l];
                 for k in 0..C {
                     out[(f0 + l) * C + k] = if ok { y[k][l] } else { 0.0 };
                 }
             }
-            f0 += n;
         }
+    }
+
+    /// One block: y = Mᵀ z, then the inverse curve, per component.
+    #[inline(always)]
+    fn block<const C: usize>(
+        &self,
+        mm: &[[f32; C]; C],
+        ee: &[f32; C],
+        z: [[f32; LANES]; C],
+    ) -> [[f32; LANES]; C] {
+        let mut y = [[0f32; LANES]; C];
+        for k in 0..C {
+            if self.colour {
+                for l in 0..LANES {
+                    let mut s = 0f32;
+                    for i in 0..C {
+                        s += mm[i][k] * z[i][l];
+                    }
+                    y[k][l] = s;
+                }
+            } else {
+                y[k] = z[k];
+            }
+            if self.eps.is_some() {
+                for l in 0..LANES {
+                    y[k][l] = (exp_f32(y[k][l]) - ee[k]).max(0.0);
+                }
+            } else {
+                for l in 0..LANES {
+                    y[k][l] = linear_inverse(y[k][l]);
+                }
+            }
+        }
+        y
     }
 
     /// Any channel count, one cell at a time (the fused fast paths cover 1 and 3 channels).
