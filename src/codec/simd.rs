@@ -143,15 +143,21 @@ impl Finisher {
         let full = cells - cells % LANES;
         let mut f0 = 0;
         while f0 < full {
+            let ok: &[bool; LANES] = valid[f0..f0 + LANES]
+                .try_into()
+                .expect("a whole block inside the validity");
+            if !ok.iter().any(|&v| v) {
+                // Below the horizon (a quarter of a MERL grid): 0 without the exp.
+                out[f0 * C..(f0 + LANES) * C].fill(0.0);
+                f0 += LANES;
+                continue;
+            }
             let z: [[f32; LANES]; C] = std::array::from_fn(|k| {
                 planes[k][f0..f0 + LANES]
                     .try_into()
                     .expect("a whole block inside the plane")
             });
             let y = self.block::<C>(&mm, &ee, z);
-            let ok: &[bool; LANES] = valid[f0..f0 + LANES]
-                .try_into()
-                .expect("a whole block inside the validity");
             let mask: [u32; LANES] = std::array::from_fn(|l| (ok[l] as u32).wrapping_neg());
             let mut staged = [[0f32; C]; LANES];
             for l in 0..LANES {
