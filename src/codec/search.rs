@@ -318,7 +318,7 @@ pub fn search(table: &Table, budget: &Budget, set: &SampleSet, level: i32) -> Re
     let c = table.channels().len();
     let mut cands = Vec::new();
     for eps_rel in EPS_CANDIDATES {
-        let transform = transform_for(table, CurveRequest::Log { eps_rel }, true);
+        let transform = transform_for(table, CurveRequest::Log { eps_rel }, true, None);
         // The forward transform is the expensive part: once per ε, reused for every step.
         let coefs = dct_coefficients(table, &transform)?;
         cands.push(EpsCandidate {
