@@ -31,6 +31,9 @@ fn cases() -> Vec<&'static str> {
         "ggx dct:step=0.1",
         "ggx production",
         "ggx dct:eps=0.001,step=1.133",
+        // The same with the cosine weight: the cost of the per-cell 1/w (weights computed
+        // from the grid at every decode).
+        "ggx dct:eps=0.001,step=1.133,weight=cosine",
     ];
     if gold().is_some() {
         v.extend([
