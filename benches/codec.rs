@@ -45,6 +45,9 @@ fn cases() -> Vec<&'static str> {
         "ggx preview",
         "ggx production",
         "ggx production-zstd",
+        // The production step with the cosine weight: the cost of the per-cell 1/w (weights
+        // computed from the grid at every decode).
+        "ggx dct:eps=0.001,step=1.31,refine=4,weight=cosine",
     ];
     if gold().is_some() {
         v.extend([

@@ -280,3 +280,46 @@ fn figures_curves() {
         }
     }
 }
+
+/// The cosine weight (issue 5, stage 2) against no weight, same chain otherwise (context-coded
+/// DCT, dead zone 0.75, plain fill, KLT colour, log ε 1e-3 of the mean or the linear curve),
+/// at a few steps: payload bytes and log_rmse / p99_rel_core on `uniform` 65,536 pairs seed 1.
+/// `BRDFPACK_SHARED=/work/shared cargo test --test codec_figures figures_weight -- --ignored --nocapture`
+/// (names `ggx-au-0.2:weight`, `gold-metallic-paint:weight` in `BRDFPACK_FIGURES`).
+#[test]
+#[ignore]
+fn figures_weight() {
+    use brdfpack::codec::search::Evaluator;
+    let mut cases: Vec<(String, Table)> = Vec::new();
+    if wanted("ggx-au-0.2", "weight") {
+        cases.push(("ggx-au-0.2".into(), testdata::ggx_merl(0.2)));
+    }
+    if wanted("gold-metallic-paint", "weight")
+        && let Some(t) = testdata::shared_merl("gold-metallic-paint")
+    {
+        cases.push(("gold-metallic-paint".into(), t));
+    }
+    let set = SampleSet::uniform(65_536, 1);
+    for (name, t) in &cases {
+        let ev = Evaluator::new(t, &set).unwrap();
+        for (curve, steps) in [
+            ("curve=log", [0.1, 0.3, 1.0]),
+            ("curve=linear", [0.001, 0.01, 0.1]),
+        ] {
+            for step in steps {
+                for weight in ["none", "cosine"] {
+                    let s = format!("dct:step={step},{curve},weight={weight}");
+                    let spec = CodecRequest::parse(&s).unwrap().resolve(t).unwrap();
+                    let m = ev.measure(&spec).unwrap();
+                    assert_eq!(m.metrics.nonfinite, 0, "{name} {s}");
+                    println!(
+                        "WEIGHT {name} {s}: payload {} B log_rmse {:.4e} p99_rel_core {:.4e}",
+                        m.payload.len(),
+                        m.metrics.log_rmse,
+                        m.metrics.p99_rel_core
+                    );
+                }
+            }
+        }
+    }
+}

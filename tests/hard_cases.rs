@@ -767,7 +767,7 @@ fn peak_transformed(t: &Table, spec: &CodecSpec) -> f64 {
         return 0.0;
     };
     let c = t.channels().len();
-    let z = transform.forward_all(t.data(), c);
+    let z = transform.forward_all(t.data(), c, t.grid(), t.valid());
     z.chunks_exact(c)
         .zip(t.valid())
         .filter(|(_, ok)| **ok)

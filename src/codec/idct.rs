@@ -153,8 +153,8 @@ pub fn inverse(c: &Coefficients, dims: &[usize], step: f64) -> Vec<f32> {
     expand_along(c, dims, step, &axis_order(&c.extent, dims)).0
 }
 
-/// Decodes every component of a DCT payload and finishes each cell (colour, curve, channel
-/// interleave, invalid cells 0) into `out` (cells × components values). For 1 and 3
+/// Decodes every component of a DCT payload and finishes each cell (colour, curve, 1/w,
+/// channel interleave, invalid cells 0) into `out` (cells × components values). For 1 and 3
 /// components the last pass is fused with the finishing step: all components share their
 /// last axis (the one with the lowest total cost), its output is produced a tile at a time
 /// and finished while in cache, so no full-size component plane is ever written.
@@ -281,6 +281,7 @@ fn final_pass<const C: usize>(
             }
             fin.run::<C>(
                 planes,
+                o * n,
                 &valid[o * n..(o + 1) * n],
                 &mut out[o * n * C..(o + 1) * n * C],
             );
@@ -362,8 +363,12 @@ impl FinalTile<'_> {
             for (k, p) in planes.iter_mut().enumerate() {
                 *p = &blocks[k * n * T + j * T..k * n * T + (j + 1) * T];
             }
-            self.fin
-                .run::<C>(planes, &self.valid[f..f + T], &mut out[f * C..(f + T) * C]);
+            self.fin.run::<C>(
+                planes,
+                f,
+                &self.valid[f..f + T],
+                &mut out[f * C..(f + T) * C],
+            );
         }
     }
 }

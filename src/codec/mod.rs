@@ -2,8 +2,8 @@
 //!
 //! A codec is a chain of stages, each a small type with its own encode/decode and tests:
 //! (1) [`domain`] — which cells are coded (invalid cells cost no bytes: the mask is implied by
-//! the grid or stored beside the data); (2) [`transform`] — a curve (linear or log(ε + x)) and
-//! an optional colour decorrelation; (3) [`quantize`] — f32 (lossless), f16 or k-bit uniform;
+//! the grid or stored beside the data); (2) [`transform`] — an optional cosine weight, a curve
+//! (linear or log(ε + x)) and an optional colour decorrelation; (3) [`quantize`] — f32 (lossless), f16 or k-bit uniform;
 //! (4) [`predict`] — residuals from grid neighbours, byte-plane shuffle; (5) [`entropy`] —
 //! zstd, or for DCT coefficients [`coefcode`], a context-adaptive range coder; (6) [`dct`] —
 //! transform coding of the whole table with quantized coefficients.
@@ -38,7 +38,7 @@ use entropy::Zstd;
 use predict::{Predictor, Shape};
 use quantize::Quantizer;
 use serde::{Deserialize, Serialize};
-use transform::{Colour, Curve, Transform};
+use transform::{Colour, Curve, Transform, Weight};
 
 /// A codec, as recorded in a file header.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -168,8 +168,31 @@ impl CodecSpec {
         }
     }
 
+    /// The transform stage of the lossy chains.
+    pub fn transform(&self) -> Option<&Transform> {
+        match self {
+            CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. } => None,
+            CodecSpec::Quantized { transform, .. }
+            | CodecSpec::Dct { transform, .. }
+            | CodecSpec::DctContext { transform, .. } => Some(transform),
+        }
+    }
+
     /// One line on what the codec preserves.
     pub fn preserves(&self) -> String {
+        let mut s = self.preserves_unweighted();
+        if let Some(w) = self.transform().and_then(|t| t.weight) {
+            s.push_str(&format!(
+                " (weight={}: the space codes w·f, w = cos θi cos θo ≥ {:e}, so errors in f \
+                 grow as 1/w toward grazing cells)",
+                w.name(),
+                transform::W_MIN
+            ));
+        }
+        s
+    }
+
+    fn preserves_unweighted(&self) -> String {
         match self {
             CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. } => {
                 "every valid sample bit for bit".into()
@@ -281,7 +304,7 @@ impl CodecSpec {
                 entropy,
                 ..
             } => {
-                let z = transform.forward_all(table.data(), c);
+                let z = transform.forward_all(table.data(), c, layout.grid, layout.valid);
                 let mut codes = vec![0i32; z.len()];
                 for (cell, &ok) in layout.valid.iter().enumerate() {
                     if ok {
@@ -409,6 +432,9 @@ impl CodecSpec {
                     None => copy_decoded(&quantize.decode_all_f32(&codes, c), out)?,
                 }
                 simd::curve_interleaved(&transform.curve, c, layout.valid, out);
+                if let Some(rw) = transform.reciprocal_weights(layout.grid, layout.valid) {
+                    simd::scale_cells(&rw, c, out);
+                }
                 Ok(())
             }
             CodecSpec::Dct {
@@ -424,7 +450,7 @@ impl CodecSpec {
                     .ok_or_else(|| Error::input("table too large"))?;
                 let raw = entropy.decompress_capped(payload, cap)?;
                 let comps = dct::deserialize(&raw, &dims, c)?;
-                let fin = simd::Finisher::new(transform, c);
+                let fin = simd::Finisher::new(transform, layout);
                 idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, out);
                 Ok(())
             }
@@ -434,7 +460,7 @@ impl CodecSpec {
                 ..
             } => {
                 let comps = coefcode::decode(payload, &dims, c)?;
-                let fin = simd::Finisher::new(transform, c);
+                let fin = simd::Finisher::new(transform, layout);
                 idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, out);
                 Ok(())
             }
@@ -510,7 +536,7 @@ pub fn dct_coefficients_for(
 fn component_planes(table: &Table, transform: &Transform) -> Vec<Vec<f64>> {
     let c = table.channels().len();
     let cells = table.grid().cells();
-    let z = transform.forward_all(table.data(), c);
+    let z = transform.forward_all(table.data(), c, table.grid(), table.valid());
     (0..c)
         .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
         .collect()
@@ -538,16 +564,19 @@ pub enum CodecRequest {
     },
     F16 {
         curve: CurveRequest,
+        weight: Option<Weight>,
         level: i32,
     },
     Uniform {
         curve: CurveRequest,
+        weight: Option<Weight>,
         bits: u32,
         colour: bool,
         level: i32,
     },
     Dct {
         curve: CurveRequest,
+        weight: Option<Weight>,
         step: f64,
         colour: bool,
         coding: DctCoding,
@@ -624,6 +653,17 @@ impl CodecRequest {
             Some("none") => false,
             Some(v) => return Err(bad("colour", v, "klt or none")),
         };
+        let weight = match take("weight").as_deref() {
+            None | Some("none") => None,
+            Some("cos" | "cosine") => Some(Weight::Cosine),
+            Some(v) => return Err(bad("weight", v, "cosine (or cos) or none")),
+        };
+        if weight.is_some() && matches!(name, "zstd-f32" | "lossless") {
+            return Err(Error::input(format!(
+                "codec {spec:?}: weight applies to the lossy codecs (f16, uniform, dct) only: \
+                 {name} keeps every sample bit for bit, so there is no error to weight"
+            )));
+        }
         let req = match name {
             "zstd-f32" => CodecRequest::ZstdF32 { level },
             "lossless" => {
@@ -658,7 +698,11 @@ impl CodecRequest {
                 };
                 CodecRequest::Lossless { level, predict }
             }
-            "f16" => CodecRequest::F16 { curve, level },
+            "f16" => CodecRequest::F16 {
+                curve,
+                weight,
+                level,
+            },
             "uniform" => {
                 let bits = match take("bits") {
                     None => {
@@ -673,6 +717,7 @@ impl CodecRequest {
                 };
                 CodecRequest::Uniform {
                     curve,
+                    weight,
                     bits,
                     colour,
                     level,
@@ -736,6 +781,7 @@ impl CodecRequest {
                 };
                 CodecRequest::Dct {
                     curve,
+                    weight,
                     step,
                     colour,
                     coding,
@@ -780,12 +826,17 @@ impl CodecRequest {
                     entropy: Zstd { level: *level },
                 }
             }
-            CodecRequest::F16 { curve, level } => {
+            CodecRequest::F16 {
+                curve,
+                weight,
+                level,
+            } => {
                 let transform = Transform {
-                    curve: curve_for(table, *curve),
+                    curve: curve_for(table, *curve, *weight),
                     colour: None,
+                    weight: *weight,
                 };
-                let z = transform.forward_all(table.data(), c);
+                let z = transform.forward_all(table.data(), c, table.grid(), table.valid());
                 let max_abs =
                     valid_values(&z, table.valid(), c).fold(0.0f64, |m, v| m.max(v.abs()));
                 CodecSpec::Quantized {
@@ -802,12 +853,13 @@ impl CodecRequest {
             }
             CodecRequest::Uniform {
                 curve,
+                weight,
                 bits,
                 colour,
                 level,
             } => {
-                let transform = transform_for(table, *curve, *colour);
-                let z = transform.forward_all(table.data(), c);
+                let transform = transform_for(table, *curve, *colour, *weight);
+                let z = transform.forward_all(table.data(), c, table.grid(), table.valid());
                 let (lo, hi): (Vec<f64>, Vec<f64>) = (0..c)
                     .map(|k| {
                         let (lo, hi) = z
@@ -835,11 +887,12 @@ impl CodecRequest {
             }
             CodecRequest::Dct {
                 curve,
+                weight,
                 step,
                 colour,
                 coding,
             } => {
-                let transform = transform_for(table, *curve, *colour);
+                let transform = transform_for(table, *curve, *colour, *weight);
                 let dct = dct::DctStage {
                     step: vec![*step; c],
                 };
@@ -874,19 +927,23 @@ fn valid_values<'a>(z: &'a [f64], valid: &'a [bool], c: usize) -> impl Iterator<
 }
 
 /// The curve for a table: ε_c = eps_rel × the channel's mean over valid cells (falling back
-/// to the pooled mean, then 1e-6, so that ε is never 0 for a black channel).
-pub fn curve_for(table: &Table, req: CurveRequest) -> Curve {
+/// to the pooled mean, then 1e-6, so that ε is never 0 for a black channel). With a weight,
+/// the mean is that of w·x, the quantity the curve is applied to: ε keeps its meaning (the
+/// level below which the coded quantity needs no relative precision).
+pub fn curve_for(table: &Table, req: CurveRequest, weight: Option<Weight>) -> Curve {
     match req {
         CurveRequest::Linear => Curve::Linear,
         CurveRequest::Log { eps_rel } => {
             let c = table.channels().len();
+            let w = weight.map(|w| w.cells(table.grid(), table.valid()));
             let mut sum = vec![0.0f64; c];
             let mut n = 0usize;
             for (cell, &ok) in table.valid().iter().enumerate() {
                 if ok {
                     n += 1;
+                    let wf = w.as_ref().map_or(1.0, |w| w[cell]);
                     for (k, s) in sum.iter_mut().enumerate() {
-                        *s += table.data()[cell * c + k].max(0.0) as f64;
+                        *s += wf * table.data()[cell * c + k].max(0.0) as f64;
                     }
                 }
             }
@@ -904,22 +961,32 @@ pub fn curve_for(table: &Table, req: CurveRequest) -> Curve {
     }
 }
 
-/// Curve plus (for several channels) the KLT of the curved channels.
-pub fn transform_for(table: &Table, req: CurveRequest, colour: bool) -> Transform {
+/// Weight and curve plus (for several channels) the KLT of the weighted, curved channels.
+pub fn transform_for(
+    table: &Table,
+    req: CurveRequest,
+    colour: bool,
+    weight: Option<Weight>,
+) -> Transform {
     let c = table.channels().len();
-    let curve = curve_for(table, req);
+    let curve = curve_for(table, req, weight);
     let colour = if colour && c > 1 {
         let t = Transform {
             curve: curve.clone(),
             colour: None,
+            weight,
         };
-        let z = t.forward_all(table.data(), c);
+        let z = t.forward_all(table.data(), c, table.grid(), table.valid());
         let samples: Vec<f64> = valid_values(&z, table.valid(), c).collect();
         Some(Colour::klt(&samples, c))
     } else {
         None
     };
-    Transform { curve, colour }
+    Transform {
+        curve,
+        colour,
+        weight,
+    }
 }
 
 /// The predictor with the smallest estimated coded size (order-0 entropy of the residual byte
@@ -1014,9 +1081,18 @@ mod tests {
             "dct:step=0.01,coding=zstd,level=3,colour=none",
             "dct:step=0.002,deadzone=1.5,refine=3",
             "dct:step=0.01,coding=context,curve=linear,refine=1",
+            "f16:weight=cosine",
+            "uniform:bits=12,weight=cos",
+            "dct:step=0.001,weight=cosine",
+            "dct:step=0.001,weight=cosine,coding=zstd",
         ] {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             let json = serde_json::to_string(&spec).unwrap();
+            assert_eq!(
+                json.contains(r#""curve":"cosine_"#),
+                s.contains("weight"),
+                "{s}"
+            );
             let back: CodecSpec = serde_json::from_str(&json).unwrap();
             assert_eq!(back, spec, "{s}");
             let payload = spec.encode(&t).unwrap();
@@ -1031,7 +1107,8 @@ mod tests {
                         assert_eq!(a.to_bits(), b.to_bits(), "{s}");
                     } else {
                         // Coarsest settings above: within 5% (uniform 8-bit linear on a
-                        // range of ~15 is ±0.03 absolute).
+                        // range of ~15 is ±0.03 absolute). The weighted ones are fine
+                        // settings of the log curve, whose errors stay relative down to ε/w.
                         assert!((a - b).abs() <= 0.05 * b + 0.04, "{s}: {a} vs {b}");
                     }
                 }
@@ -1051,23 +1128,41 @@ mod tests {
         let fast = spec.decode(&payload, &layout).unwrap();
         let slow = reference::decode(spec, &payload, &layout).unwrap();
         assert_eq!(fast.len(), slow.len());
-        let (curve, exact) = match spec {
-            CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. } => (None, true),
-            CodecSpec::Quantized { transform, .. }
-            | CodecSpec::Dct { transform, .. }
-            | CodecSpec::DctContext { transform, .. } => (Some(&transform.curve), false),
-        };
+        let exact = spec.is_lossless();
+        let curve = spec.transform().map(|t| &t.curve);
+        let weights = spec
+            .transform()
+            .and_then(|t| t.cell_weights(layout.grid, layout.valid));
         let c = layout.channels;
+        let scale = slow.iter().enumerate().fold(0f32, |m, (i, b)| {
+            m.max(b.abs() * weights.as_ref().map_or(1.0, |w| w[i / c]) as f32)
+        });
         for (i, (a, b)) in fast.iter().zip(&slow).enumerate() {
+            // ε is in the units of the coded quantity w·x: ε/w in those of x.
+            let w = weights.as_ref().map_or(1.0, |w| w[i / c]) as f32;
             let eps = match curve {
-                Some(Curve::Log { eps }) => eps[i % c] as f32,
+                Some(Curve::Log { eps }) => eps[i % c] as f32 / w,
                 _ => 0.0,
             };
-            let bit_exact = exact
-                || (matches!(curve, Some(Curve::Linear))
-                    && matches!(spec, CodecSpec::Quantized { .. }));
-            if bit_exact {
+            let linear_quantized =
+                matches!(curve, Some(Curve::Linear)) && matches!(spec, CodecSpec::Quantized { .. });
+            if exact || (linear_quantized && weights.is_none()) {
                 assert_eq!(a.to_bits(), b.to_bits(), "{what}: value {i}: {a} vs {b}");
+            } else if linear_quantized {
+                // 1/w: an f32 multiply by the rounded reciprocal against an f64 division,
+                // after the f32 rounding of the dequantized value: ≤ 3 roundings of 2⁻²⁴.
+                assert!(
+                    (a - b).abs() <= 2e-7 * b.abs() + f32::MIN_POSITIVE,
+                    "{what}: value {i}: {a} vs {b} (w {w})"
+                );
+            } else if weights.is_some() && matches!(curve, Some(Curve::Linear)) {
+                // The DCT's f32 rounding is relative to the plane's largest values (as in
+                // idct's tests, 1e-5 of the largest |w·x|), not to a small w·x at a grazing
+                // cell; ÷ w in the units of x.
+                assert!(
+                    (a - b).abs() <= 5e-5 * b.abs() + 1e-5 * scale / w + f32::MIN_POSITIVE,
+                    "{what}: value {i}: {a} vs {b} (w {w}, largest w·x {scale})"
+                );
             } else {
                 assert!(
                     (a - b).abs() <= 5e-5 * (b.abs() + eps) + f32::MIN_POSITIVE,
@@ -1093,6 +1188,13 @@ mod tests {
             "dct:step=0.001",
             "dct:step=0.05",
             "dct:step=0.01,curve=linear,colour=none",
+            "f16:weight=cosine",
+            "f16:curve=linear,weight=cosine",
+            "uniform:bits=12,weight=cosine",
+            "uniform:bits=10,curve=linear,weight=cosine",
+            "uniform:bits=10,curve=linear,colour=none,weight=cosine",
+            "dct:step=0.001,weight=cosine",
+            "dct:step=0.01,curve=linear,colour=none,weight=cosine,coding=zstd",
         ] {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             assert_matches_reference(&t, &spec, s);
@@ -1106,7 +1208,7 @@ mod tests {
         #[test]
         fn random_tables_decode_like_the_reference(
             a in 2usize..9, b in 2usize..9, cc in 2usize..13, three in proptest::bool::ANY,
-            seed in proptest::prelude::any::<u64>(), which in 0usize..5,
+            seed in proptest::prelude::any::<u64>(), which in 0usize..8,
         ) {
             let g = parse_grid_spec(&format!("halfdiff3:{a}x{b}x{cc}")).unwrap();
             let valid = g.geometric_mask();
@@ -1120,7 +1222,9 @@ mod tests {
                 .collect();
             let t = Table::new(g, Channels::default_for(c), Provenance::default(), data, valid)
                 .unwrap();
-            let s = ["lossless", "f16", "uniform:bits=14", "dct:step=0.003", "dct:step=0.1"][which];
+            let s = ["lossless", "f16", "uniform:bits=14", "dct:step=0.003", "dct:step=0.1",
+                     "f16:weight=cosine", "uniform:bits=14,weight=cosine",
+                     "dct:step=0.003,weight=cosine"][which];
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             assert_matches_reference(&t, &spec, s);
         }
@@ -1152,6 +1256,200 @@ mod tests {
         }
     }
 
+    /// A GGX conductor (grazing Fresnel peaks) on `grid`, 3 channels.
+    fn ggx_on(grid: &str) -> Table {
+        let g = parse_grid_spec(grid).unwrap();
+        crate::tabulate::tabulate(
+            &testdata::GgxConductor::new(0.15),
+            &g,
+            &crate::tabulate::TabulateOptions::default(),
+        )
+        .unwrap()
+    }
+
+    /// Every grid kind (warps, placements, θmax), weighted chains: the decoded table meets the
+    /// quantizer's promise in the weighted transformed space, z = M curve(w·x). Uniform: every
+    /// valid component within step/2 (through the colour matrix: `max_transformed_error`); f16:
+    /// within `max_error` of its magnitude; DCT (orthonormal, Parseval): Σ over valid
+    /// components of Δz² ≤ Σ over all coefficients of their quantization error² ≤ cells ×
+    /// (r·step)², r = ½ for rounding (zstd coding), the dead zone 0.75 for context coding.
+    /// Each plus the f32 rounding of the decoded value (relative 2⁻²³ of w·x and of ε).
+    #[test]
+    fn weighted_chains_meet_their_bound_in_the_weighted_space_on_every_grid_kind() {
+        for grid in [
+            "halfdiff3:12x10x16,warp=sqrt/linear/linear,at=edge",
+            "halfdiff4:8x6x8x10,warp=sqrt/linear/linear/linear",
+            "spherical3:12x12x10,theta-max=85",
+            "spherical4:8x6x8x6,at=edge",
+        ] {
+            let t = ggx_on(grid);
+            let c = 3;
+            for s in [
+                "uniform:bits=12,weight=cosine",
+                "uniform:bits=11,curve=linear,weight=cosine",
+                "f16:weight=cosine",
+                "f16:curve=linear,weight=cosine",
+                "dct:step=0.02,weight=cosine",
+                "dct:step=0.02,weight=cosine,coding=zstd",
+                "dct:step=0.05,curve=linear,colour=none,weight=cosine",
+            ] {
+                let what = format!("{grid} {s}");
+                let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+                let tr = spec.transform().unwrap().clone();
+                assert_eq!(tr.weight, Some(Weight::Cosine), "{what}");
+                let dec = spec
+                    .decode(&spec.encode(&t).unwrap(), &Layout::of(&t))
+                    .unwrap();
+                assert!(dec.iter().all(|v| v.is_finite() && *v >= 0.0), "{what}");
+                let za = tr.forward_all(&dec, c, t.grid(), t.valid());
+                let zb = tr.forward_all(t.data(), c, t.grid(), t.valid());
+                let w = tr.cell_weights(t.grid(), t.valid()).unwrap();
+                // f32 rounding in the decoder (of y = Mᵀz, |y| ≤ ‖z‖, before the inverse
+                // curve; of the decoded x), seen in the transformed space: a few 2⁻²⁴.
+                let norm = |f: usize| {
+                    zb[f * c..f * c + c]
+                        .iter()
+                        .map(|v| v * v)
+                        .sum::<f64>()
+                        .sqrt()
+                };
+                let rounding = |f: usize, k: usize| match &tr.curve {
+                    Curve::Linear => 4.8e-7 * (w[f] * t.data()[f * c + k].abs() as f64 + norm(f)),
+                    Curve::Log { .. } => 2.4e-7 * (2.0 + norm(f)),
+                };
+                let valid = |f: &usize| t.valid()[*f];
+                let cells = t.grid().cells();
+                let mut max_ratio = 0f64;
+                match &spec {
+                    CodecSpec::Quantized { quantize, .. } => {
+                        for f in (0..cells).filter(valid) {
+                            // Component k of z is what was quantized, within max_error_k. The
+                            // decoder's clamp (x ≥ 0, per channel after Mᵀ) projects onto a
+                            // convex set holding the true value, so it can only shorten the
+                            // error vector, but it may move it between components: bound the
+                            // cell's Euclidean error (M is orthonormal).
+                            let zs = f * c..f * c + c;
+                            let err = za[zs.clone()]
+                                .iter()
+                                .zip(&zb[zs.clone()])
+                                .map(|(a, b)| (a - b).powi(2))
+                                .sum::<f64>()
+                                .sqrt();
+                            let bound = (0..c)
+                                .map(|k| quantize.max_error(k, zb[f * c + k].abs()).powi(2))
+                                .sum::<f64>()
+                                .sqrt();
+                            let r: f64 = (0..c).map(|j| rounding(f, j)).sum();
+                            assert!(
+                                err <= bound + r + 1e-12,
+                                "{what}: cell {f} w {}: {:?} vs {:?} (bound {bound})",
+                                w[f],
+                                &za[zs.clone()],
+                                &zb[zs]
+                            );
+                            max_ratio = max_ratio.max(err / bound);
+                        }
+                        // Not vacuous: some cell's error is a sizeable part of its bound.
+                        assert!(max_ratio > 0.3, "{what}: largest error/bound {max_ratio}");
+                    }
+                    CodecSpec::Dct { dct, .. } | CodecSpec::DctContext { dct, .. } => {
+                        let r = match &spec {
+                            CodecSpec::Dct { .. } => 0.5,
+                            _ => coefcode::DEFAULT_DEADZONE,
+                        };
+                        // z in component space: undo nothing, the colour matrix is orthonormal
+                        // so Σ_k Δz_k² is the same before and after it.
+                        let sse: f64 = (0..cells)
+                            .filter(valid)
+                            .flat_map(|f| (0..c).map(move |k| f * c + k))
+                            .map(|i| (za[i] - zb[i]).powi(2))
+                            .sum();
+                        let fp: f64 = (0..cells)
+                            .filter(valid)
+                            .flat_map(|f| (0..c).map(move |k| (f, k)))
+                            .map(|(f, k)| (rounding(f, k) + 2e-5).powi(2))
+                            .sum();
+                        let bound = (cells * c) as f64 * (r * dct.step[0]).powi(2);
+                        assert!(
+                            sse.sqrt() <= bound.sqrt() + fp.sqrt(),
+                            "{what}: √SSE {} > √bound {}",
+                            sse.sqrt(),
+                            bound.sqrt()
+                        );
+                        // Not vacuous: the error is a sizeable part of the bound.
+                        assert!(sse > 1e-4 * bound, "{what}: {sse} vs {bound}");
+                    }
+                    _ => unreachable!(),
+                }
+            }
+        }
+    }
+
+    /// Cells at the weight floor (pairs below the horizon declared valid, as an explicit mask
+    /// may) holding values up to f32::MAX, and 0: every weighted chain decodes them finite
+    /// and ≥ 0, and invalid cells to 0.
+    #[test]
+    fn grazing_cells_decode_finite() {
+        let g = parse_grid_spec("halfdiff3:6x6x8,at=edge").unwrap();
+        let prod = g.cos_products();
+        let mut valid = g.geometric_mask();
+        // Below-horizon cells become valid, except every third (kept invalid).
+        for (f, v) in valid.iter_mut().enumerate() {
+            if prod[f] == 0.0 && f % 3 != 0 {
+                *v = true;
+            }
+        }
+        assert!(valid.iter().zip(&prod).any(|(&ok, &p)| ok && p == 0.0));
+        let data: Vec<f32> = (0..g.cells() * 3)
+            .map(|i| match (i / 3) % 4 {
+                0 => f32::MAX,
+                1 => 0.0,
+                2 => 1e30,
+                _ => 0.5,
+            })
+            .collect();
+        let t = Table::new(
+            g,
+            Channels::default_for(3),
+            Provenance::default(),
+            data,
+            valid.clone(),
+        )
+        .unwrap();
+        for s in [
+            "f16:curve=linear,weight=cosine",
+            "f16:weight=cosine",
+            "uniform:bits=16,curve=linear,weight=cosine",
+            "uniform:bits=16,weight=cosine",
+            "dct:step=0.01,weight=cosine",
+            "dct:step=0.01,weight=cosine,coding=zstd",
+        ] {
+            let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+            let layout = Layout::of(&t);
+            let payload = spec.encode(&t).unwrap();
+            for dec in [
+                spec.decode(&payload, &layout).unwrap(),
+                reference::decode(&spec, &payload, &layout).unwrap(),
+            ] {
+                for (i, v) in dec.iter().enumerate() {
+                    assert!(v.is_finite() && *v >= 0.0, "{s}: value {i} = {v}");
+                    if !valid[i / 3] {
+                        assert_eq!(*v, 0.0, "{s}: invalid value {i}");
+                    }
+                }
+                // The floor cells holding f32::MAX come back huge, not clamped to 0.
+                let big = dec
+                    .chunks_exact(3)
+                    .zip(&valid)
+                    .zip(&prod)
+                    .filter(|((_, ok), p)| **ok && **p == 0.0)
+                    .map(|((v, _), _)| v[0])
+                    .fold(0f32, f32::max);
+                assert!(big > 1e37, "{s}: {big}");
+            }
+        }
+    }
+
     #[test]
     fn bad_requests_name_the_option() {
         for (s, want) in [
@@ -1172,6 +1470,18 @@ mod tests {
             ("dct:step=0.1,deadzone=0.2", "deadzone"),
             ("dct:step=0.1,refine=21", "refine"),
             ("dct:step=0.1,coding=huffman", "coding"),
+            (
+                "dct:step=0.1,weight=sine",
+                "weight = \"sine\", expected cosine",
+            ),
+            (
+                "lossless:weight=cosine",
+                "weight applies to the lossy codecs (f16, uniform, dct) only: lossless keeps",
+            ),
+            (
+                "zstd-f32:weight=cos",
+                "zstd-f32 keeps every sample bit for bit",
+            ),
         ] {
             let e = CodecRequest::parse(s).unwrap_err().to_string();
             assert!(e.contains(want), "{s}: {e}");

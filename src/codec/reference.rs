@@ -5,7 +5,7 @@
 //! beside (`cargo bench --bench codec`). Not part of the public interface.
 
 use super::predict::{self, Predictor};
-use super::transform::Transform;
+use super::transform::{Transform, finite_f32};
 use super::{CodecSpec, Layout, dct};
 use crate::{Error, Result};
 
@@ -44,6 +44,7 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
             let raw = entropy.decompress(payload, n_valid * c * 4)?;
             let res = predict::unshuffle(&raw)?;
             let codes = predict.reconstruct_i32(&res, &layout.shape(&dims))?;
+            let w = transform.cell_weights(layout.grid, layout.valid);
             let mut out = vec![0f32; values];
             let mut z = vec![0.0; c];
             let mut y = vec![0.0; c];
@@ -52,7 +53,8 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                     for k in 0..c {
                         z[k] = quantize.decode(codes[cell * c + k], k);
                     }
-                    transform.inverse_cell(&z, &mut y, &mut out[cell * c..(cell + 1) * c]);
+                    let wf = w.as_ref().map_or(1.0, |w| w[cell]);
+                    transform.inverse_cell(&z, &mut y, wf, &mut out[cell * c..(cell + 1) * c]);
                 }
             }
             Ok(out)
@@ -74,7 +76,7 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                 .zip(&stage.step)
                 .map(|(q, &s)| dct_inverse(q, &dims, s))
                 .collect();
-            Ok(inverse_planes(transform, &planes, layout.valid, c))
+            Ok(inverse_planes(transform, &planes, layout, c))
         }
         CodecSpec::DctContext {
             transform,
@@ -87,7 +89,7 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                 .zip(&stage.step)
                 .map(|(q, &s)| dct_inverse(q, &dims, s))
                 .collect();
-            Ok(inverse_planes(transform, &planes, layout.valid, c))
+            Ok(inverse_planes(transform, &planes, layout, c))
         }
     }
 }
@@ -156,8 +158,11 @@ pub fn dct_inverse(c: &dct::Coefficients, dims: &[usize], step: f64) -> Vec<f32>
     cur
 }
 
-/// Component planes → cell-major channels through the inverse transform, libm `exp`.
-fn inverse_planes(t: &Transform, planes: &[Vec<f32>], valid: &[bool], c: usize) -> Vec<f32> {
+/// Component planes → cell-major channels through the inverse transform, libm `exp`, a
+/// division by the weight in f64.
+fn inverse_planes(t: &Transform, planes: &[Vec<f32>], layout: &Layout, c: usize) -> Vec<f32> {
+    let valid = layout.valid;
+    let w = t.cell_weights(layout.grid, valid);
     let cells = valid.len();
     let mut out = vec![0f32; cells * c];
     let m: Option<Vec<f32>> = t
@@ -178,7 +183,10 @@ fn inverse_planes(t: &Transform, planes: &[Vec<f32>], valid: &[bool], c: usize) 
                 Some(m) => (0..c).map(|i| m[i * c + k] * z[i]).sum::<f32>(),
                 None => z[k],
             };
-            *ok = t.curve.inverse_f32(y, k);
+            *ok = match &w {
+                Some(w) => finite_f32(t.curve.inverse_f32(y, k) as f64 / w[f]),
+                None => t.curve.inverse_f32(y, k),
+            };
         }
     }
     out

@@ -1,9 +1,12 @@
 //! The text form of a [`CodecRequest`]: `Display` writes the canonical spec that
 //! [`CodecRequest::parse`] reads back to the same request (every option spelled out, numbers
 //! in Rust's shortest round-trip notation), e.g.
-//! `dct:step=0.02,curve=log,eps=0.001,colour=klt,coding=zstd,level=19`.
+//! `dct:step=0.02,curve=log,eps=0.001,colour=klt,coding=zstd,level=19`. The one exception to
+//! "every option": `weight` is written only when set (`,weight=cosine`), so that the canonical
+//! text of every unweighted request is what it was before weights existed.
 
 use super::predict::{Predictor, Space};
+use super::transform::Weight;
 use super::{CodecRequest, CurveRequest, DctCoding};
 use std::fmt;
 
@@ -55,6 +58,13 @@ fn curve(f: &mut fmt::Formatter, c: &CurveRequest) -> fmt::Result {
     }
 }
 
+fn weight(f: &mut fmt::Formatter, w: &Option<Weight>) -> fmt::Result {
+    match w {
+        None => Ok(()),
+        Some(w) => write!(f, ",weight={}", w.name()),
+    }
+}
+
 fn colour(colour: bool) -> &'static str {
     if colour { "klt" } else { "none" }
 }
@@ -85,23 +95,32 @@ impl fmt::Display for CodecRequest {
                 }
                 write!(f, ",level={level}")
             }
-            CodecRequest::F16 { curve: c, level } => {
+            CodecRequest::F16 {
+                curve: c,
+                weight: w,
+                level,
+            } => {
                 write!(f, "f16:")?;
                 curve(f, c)?;
+                weight(f, w)?;
                 write!(f, ",level={level}")
             }
             CodecRequest::Uniform {
                 curve: c,
+                weight: w,
                 bits,
                 colour: k,
                 level,
             } => {
                 write!(f, "uniform:bits={bits},")?;
                 curve(f, c)?;
-                write!(f, ",colour={},level={level}", colour(*k))
+                write!(f, ",colour={}", colour(*k))?;
+                weight(f, w)?;
+                write!(f, ",level={level}")
             }
             CodecRequest::Dct {
                 curve: c,
+                weight: w,
                 step,
                 colour: k,
                 coding,
@@ -109,6 +128,7 @@ impl fmt::Display for CodecRequest {
                 write!(f, "dct:step={step:?},")?;
                 curve(f, c)?;
                 write!(f, ",colour={}", colour(*k))?;
+                weight(f, w)?;
                 match coding {
                     DctCoding::Zstd { level } => write!(f, ",coding=zstd,level={level}"),
                     DctCoding::Context { deadzone, refine } => {
@@ -145,6 +165,22 @@ mod tests {
             (
                 "dct:step=0.5,refine=2",
                 "dct:step=0.5,curve=log,eps=0.001,colour=klt,coding=context,deadzone=0.75,refine=2",
+            ),
+            (
+                "dct:step=0.5,weight=cos,curve=linear",
+                "dct:step=0.5,curve=linear,colour=klt,weight=cosine,coding=context,deadzone=0.75,refine=0",
+            ),
+            (
+                "dct:step=0.5,weight=none,coding=zstd",
+                "dct:step=0.5,curve=log,eps=0.001,colour=klt,coding=zstd,level=19",
+            ),
+            (
+                "f16:weight=cosine",
+                "f16:curve=log,eps=0.001,weight=cosine,level=19",
+            ),
+            (
+                "uniform:bits=9,weight=cosine,colour=none",
+                "uniform:bits=9,curve=log,eps=0.001,colour=none,weight=cosine,level=19",
             ),
         ] {
             let r = CodecRequest::parse(spec).unwrap();

@@ -1,5 +1,6 @@
 //! Decoder kernels shared by the chains: a vectorizable f32 `exp`, the last step of the lossy
-//! decoders (inverse colour matrix, inverse curve, channel interleave, invalid cells to 0), and
+//! decoders (inverse colour matrix, inverse curve, 1/w of a weighted transform, channel
+//! interleave, invalid cells to 0), and
 //! the run-time choice between the portable and the AVX2 copy of a loop.
 //!
 //! Every kernel is plain Rust compiled twice: once for the baseline target and once with
@@ -9,6 +10,7 @@
 
 #![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
 
+use super::Layout;
 use super::transform::{Curve, Transform};
 
 /// True when the AVX2 copies of the decoder loops can run on this CPU.
@@ -95,17 +97,21 @@ pub fn exp_f32(x: f32) -> f32 {
 const LANES: usize = 8;
 
 /// The last decoder step: per cell, y = Mᵀ z (when there is a colour matrix), the inverse
-/// curve, written channel-interleaved (cell-major); invalid cells get 0.
+/// curve, × 1/w (weighted transforms), written channel-interleaved (cell-major); invalid cells
+/// get 0.
 pub(crate) struct Finisher {
     c: usize,
     /// Mᵀ applied as y_k = Σ_i m[i·c + k] z_i (the identity without colour).
     m: Vec<f32>,
     eps: Option<Vec<f32>>,
     colour: bool,
+    /// 1/w of every cell of the layout, computed once per decode (weighted transforms only).
+    rw: Option<Vec<f32>>,
 }
 
 impl Finisher {
-    pub(crate) fn new(t: &Transform, c: usize) -> Finisher {
+    pub(crate) fn new(t: &Transform, layout: &Layout) -> Finisher {
+        let c = layout.channels;
         let m = match &t.colour {
             Some(col) => col.matrix.iter().map(|&x| x as f32).collect(),
             None => (0..c * c)
@@ -121,18 +127,26 @@ impl Finisher {
             m,
             eps,
             colour: t.colour.is_some(),
+            rw: t.reciprocal_weights(layout.grid, layout.valid),
         }
     }
 
-    /// Cells `0..valid.len()` of the component runs `planes` into `out` (C values per cell).
-    /// Inlined into the caller's AVX2 or portable copy. Whole blocks of [`LANES`] cells take a
-    /// fixed-size path (no variable-length copies, the validity applied as a bit mask, the
-    /// interleave through a fixed-size staging array), the tail the general one; both perform
-    /// the same arithmetic per cell, so the same bits.
+    /// Cells `first..first + valid.len()` of the layout, held by the component runs `planes`,
+    /// into `out` (C values per cell). Inlined into the caller's AVX2 or portable copy. Whole
+    /// blocks of [`LANES`] cells take a fixed-size path (no variable-length copies, the
+    /// validity applied as a bit mask, the interleave through a fixed-size staging array), the
+    /// tail the general one; both perform the same arithmetic per cell, so the same bits.
     #[inline(always)]
-    pub(crate) fn run<const C: usize>(&self, planes: [&[f32]; C], valid: &[bool], out: &mut [f32]) {
+    pub(crate) fn run<const C: usize>(
+        &self,
+        planes: [&[f32]; C],
+        first: usize,
+        valid: &[bool],
+        out: &mut [f32],
+    ) {
         debug_assert_eq!(self.c, C);
         let cells = valid.len();
+        let rw = self.rw.as_deref().map(|r| &r[first..first + cells]);
         let mut mm = [[0f32; C]; C];
         for i in 0..C {
             for k in 0..C {
@@ -157,7 +171,19 @@ impl Finisher {
                     .try_into()
                     .expect("a whole block inside the plane")
             });
-            let y = self.block::<C>(&mm, &ee, z);
+            let mut y = self.block::<C>(&mm, &ee, z);
+            // One branch per block, taken the same way for the whole decode: the unweighted
+            // path does no more work than before.
+            if let Some(r) = rw {
+                let s: &[f32; LANES] = r[f0..f0 + LANES]
+                    .try_into()
+                    .expect("a whole block inside the weights");
+                for k in 0..C {
+                    for l in 0..LANES {
+                        y[k][l] = scale_finite(y[k][l], s[l]);
+                    }
+                }
+            }
             let mask: [u32; LANES] = std::array::from_fn(|l| (ok[l] as u32).wrapping_neg());
             let mut staged = [[0f32; C]; LANES];
             for l in 0..LANES {
@@ -177,7 +203,16 @@ impl Finisher {
             for k in 0..C {
                 z[k][..n].copy_from_slice(&planes[k][f0..cells]);
             }
-            let y = self.block::<C>(&mm, &ee, z);
+            let mut y = self.block::<C>(&mm, &ee, z);
+            if let Some(r) = rw {
+                let mut s = [0f32; LANES];
+                s[..n].copy_from_slice(&r[f0..f0 + n]);
+                for k in 0..C {
+                    for l in 0..LANES {
+                        y[k][l] = scale_finite(y[k][l], s[l]);
+                    }
+                }
+            }
             for l in 0..n {
                 let ok = valid[f0 + l];
                 for k in 0..C {
@@ -237,7 +272,11 @@ impl Finisher {
                     } else {
                         planes[k][f]
                     };
-                    curve_inverse(y, self.eps.as_ref().map(|e| e[k]))
+                    let v = curve_inverse(y, self.eps.as_ref().map(|e| e[k]));
+                    match &self.rw {
+                        Some(r) => scale_finite(v, r[f]),
+                        None => v,
+                    }
                 } else {
                     0.0
                 };
@@ -262,11 +301,11 @@ dispatch!(fn finish_n / finish_n_avx2 => finish_cn(f: &Finisher, planes: &[&[f32
 
 #[inline(always)]
 fn finish_c1(f: &Finisher, p: &[&[f32]], v: &[bool], o: &mut [f32]) {
-    f.run::<1>([p[0]], v, o)
+    f.run::<1>([p[0]], 0, v, o)
 }
 #[inline(always)]
 fn finish_c3(f: &Finisher, p: &[&[f32]], v: &[bool], o: &mut [f32]) {
-    f.run::<3>([p[0], p[1], p[2]], v, o)
+    f.run::<3>([p[0], p[1], p[2]], 0, v, o)
 }
 #[inline(always)]
 fn finish_cn(f: &Finisher, p: &[&[f32]], v: &[bool], o: &mut [f32]) {
@@ -304,6 +343,30 @@ fn curve_impl(eps: Option<&[f32]>, c: usize, valid: &[bool], v: &mut [f32]) {
             }
         }
     }
+}
+
+/// Cell-major values (`c` per cell, finite and ≥ 0 as the inverse curves leave them) × the
+/// cell's 1/w, in place.
+pub fn scale_cells(rw: &[f32], c: usize, v: &mut [f32]) {
+    scale_block(rw, c, v)
+}
+
+dispatch!(fn scale_block / scale_block_avx2 => scale_impl(rw: &[f32], c: usize, v: &mut [f32]));
+
+#[inline(always)]
+fn scale_impl(rw: &[f32], c: usize, v: &mut [f32]) {
+    for (cell, &r) in v.chunks_exact_mut(c).zip(rw) {
+        for x in cell {
+            *x = scale_finite(*x, r);
+        }
+    }
+}
+
+/// v × 1/w for a decoded v ≥ 0 (finite, not NaN) and 1/w ∈ [1, 1/W_MIN]: the product may
+/// pass f32::MAX and saturates there, so a weighted decode never returns Inf either.
+#[inline(always)]
+fn scale_finite(v: f32, rw: f32) -> f32 {
+    (v * rw).min(f32::MAX)
 }
 
 /// The linear inverse as in `Curve::inverse_f32`: clamped at 0 (ringing next to a 1e9 peak

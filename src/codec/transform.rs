@@ -1,7 +1,9 @@
-//! Stage (2), transform: a per-channel curve (linear or log(ε + x)) and an optional colour
-//! decorrelation (an orthonormal c×c matrix, the Karhunen–Loève transform of the table's
-//! channels, recorded in the header).
+//! Stage (2), transform: an optional per-cell weight (cosine: w = cos θi cos θo), a per-channel
+//! curve (linear or log(ε + x)) and an optional colour decorrelation (an orthonormal c×c matrix,
+//! the Karhunen–Loève transform of the table's channels, recorded in the header). The coded
+//! components of a cell are z = M curve(w·x); the decoder returns curve⁻¹(Mᵀ z) / w.
 
+use crate::grid::Grid;
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -218,13 +220,110 @@ impl Colour {
     }
 }
 
-/// Stage (2) as recorded: a curve and an optional colour decorrelation.
+/// A per-cell weight w applied before the curve: the coded quantity is curve(w·x), and the
+/// decoder divides by w.
+///
+/// Why cosine: what a renderer integrates is f·cos θi (and, summed over a lobe seen from a
+/// direction, roughly f·cos θi·cos θo), so an error at a grazing cell matters less than the same
+/// relative error head-on; and the grazing peaks of Fresnel and retro-reflection, which would
+/// otherwise set the range of the linear curve (and its quantization step), shrink by w.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Weight {
+    /// w = max(cos θi · cos θo, [`W_MIN`]) of the cell's sample pair ([`Grid::cos_products`]).
+    Cosine,
+}
+
+/// Floor of the weight of a valid cell. Cells closer to the horizon (cos θi cos θo < 1e-4: θo
+/// within 0.006° of it when θi = 0, or both within 0.57°) are coded with w = 1e-4: the division
+/// by w amplifies the coding error by at most 1e4 there, and 1/w stays a finite f32.
+pub const W_MIN: f64 = 1e-4;
+
+impl Weight {
+    /// The weight of every cell of `grid`: valid cells floored at [`W_MIN`] (a NaN product
+    /// reads as the floor: `f64::max` drops NaN), invalid cells 1 (never coded; 1 keeps the
+    /// filled values of the DCT chains as they are).
+    pub fn cells(self, grid: &Grid, valid: &[bool]) -> Vec<f64> {
+        match self {
+            Weight::Cosine => grid
+                .cos_products()
+                .into_iter()
+                .zip(valid)
+                .map(|(w, &ok)| if ok { w.max(W_MIN) } else { 1.0 })
+                .collect(),
+        }
+    }
+
+    /// The name in `--codec` requests and summaries.
+    pub fn name(self) -> &'static str {
+        match self {
+            Weight::Cosine => "cosine",
+        }
+    }
+}
+
+/// Stage (2) as recorded: an optional weight, a curve and an optional colour decorrelation.
+///
+/// In the header the weight is part of the curve's tag (`"curve": "cosine_log"`), not a field
+/// of its own: a reader built before weights existed ignores unknown fields, so it would have
+/// decoded w·f as f without a word; an unknown tag it refuses ("unknown variant"). Unweighted
+/// headers are unchanged (`"curve": "log"`), byte for byte.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(from = "TransformRecord", into = "TransformRecord")]
 pub struct Transform {
-    #[serde(flatten)]
     pub curve: Curve,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub colour: Option<Colour>,
+    pub weight: Option<Weight>,
+}
+
+/// The header form of [`Transform`].
+#[derive(Clone, Serialize, Deserialize)]
+struct TransformRecord {
+    #[serde(flatten)]
+    curve: CurveRecord,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    colour: Option<Colour>,
+}
+
+/// [`Curve`] with the weight folded into the tag.
+#[derive(Clone, Serialize, Deserialize)]
+#[serde(tag = "curve", rename_all = "snake_case")]
+enum CurveRecord {
+    Linear,
+    Log { eps: Vec<f64> },
+    CosineLinear,
+    CosineLog { eps: Vec<f64> },
+}
+
+impl From<TransformRecord> for Transform {
+    fn from(r: TransformRecord) -> Transform {
+        let (curve, weight) = match r.curve {
+            CurveRecord::Linear => (Curve::Linear, None),
+            CurveRecord::Log { eps } => (Curve::Log { eps }, None),
+            CurveRecord::CosineLinear => (Curve::Linear, Some(Weight::Cosine)),
+            CurveRecord::CosineLog { eps } => (Curve::Log { eps }, Some(Weight::Cosine)),
+        };
+        Transform {
+            curve,
+            colour: r.colour,
+            weight,
+        }
+    }
+}
+
+impl From<Transform> for TransformRecord {
+    fn from(t: Transform) -> TransformRecord {
+        let curve = match (t.curve, t.weight) {
+            (Curve::Linear, None) => CurveRecord::Linear,
+            (Curve::Log { eps }, None) => CurveRecord::Log { eps },
+            (Curve::Linear, Some(Weight::Cosine)) => CurveRecord::CosineLinear,
+            (Curve::Log { eps }, Some(Weight::Cosine)) => CurveRecord::CosineLog { eps },
+        };
+        TransformRecord {
+            curve,
+            colour: t.colour,
+        }
+    }
 }
 
 impl Transform {
@@ -236,13 +335,31 @@ impl Transform {
         Ok(())
     }
 
-    /// Transformed components of every cell (cell-major, component fastest), in f64.
-    pub fn forward_all(&self, data: &[f32], c: usize) -> Vec<f64> {
+    /// The weight of every cell (see [`Weight::cells`]), `None` when unweighted.
+    pub fn cell_weights(&self, grid: &Grid, valid: &[bool]) -> Option<Vec<f64>> {
+        self.weight.map(|w| w.cells(grid, valid))
+    }
+
+    /// 1/w of every cell in f32, for the decoders' final multiply (≤ 1/[`W_MIN`], finite).
+    pub fn reciprocal_weights(&self, grid: &Grid, valid: &[bool]) -> Option<Vec<f32>> {
+        self.cell_weights(grid, valid)
+            .map(|w| w.iter().map(|&w| (1.0 / w) as f32).collect())
+    }
+
+    /// Transformed components of every cell (cell-major, component fastest), in f64; the
+    /// weights (when the transform has them) come from `grid` and `valid`.
+    pub fn forward_all(&self, data: &[f32], c: usize, grid: &Grid, valid: &[bool]) -> Vec<f64> {
+        let w = self.cell_weights(grid, valid);
         let mut out = vec![0.0; data.len()];
         let mut y = vec![0.0; c];
-        for (cell, o) in data.chunks_exact(c).zip(out.chunks_exact_mut(c)) {
+        for (f, (cell, o)) in data
+            .chunks_exact(c)
+            .zip(out.chunks_exact_mut(c))
+            .enumerate()
+        {
+            let wf = w.as_ref().map_or(1.0, |w| w[f]);
             for k in 0..c {
-                y[k] = self.curve.forward(cell[k] as f64, k);
+                y[k] = self.curve.forward(wf * cell[k] as f64, k);
             }
             match &self.colour {
                 Some(col) => col.forward(&y, o),
@@ -252,15 +369,16 @@ impl Transform {
         out
     }
 
-    /// One cell back from transformed components.
+    /// One cell back from transformed components; `w` is the cell's weight (1 unweighted:
+    /// the division is then exact, so unweighted values are as before).
     #[inline]
-    pub fn inverse_cell(&self, z: &[f64], y: &mut [f64], out: &mut [f32]) {
+    pub fn inverse_cell(&self, z: &[f64], y: &mut [f64], w: f64, out: &mut [f32]) {
         match &self.colour {
             Some(col) => col.inverse(z, y),
             None => y.copy_from_slice(z),
         }
         for (k, o) in out.iter_mut().enumerate() {
-            *o = finite_f32(self.curve.inverse(y[k], k));
+            *o = finite_f32(self.curve.inverse(y[k], k) / w);
         }
     }
 }
@@ -282,8 +400,17 @@ mod tests {
         Transform {
             curve: log.clone(),
             colour: None,
+            weight: None,
         }
-        .inverse_cell(&[1e299f64.ln() + 0.25], &mut [0.0], &mut out);
+        .inverse_cell(&[1e299f64.ln() + 0.25], &mut [0.0], 1.0, &mut out);
+        assert_eq!(out[0], f32::MAX);
+        // A weighted cell at the floor: 1 / W_MIN more, still saturated, never Inf.
+        Transform {
+            curve: Curve::Linear,
+            colour: None,
+            weight: Some(Weight::Cosine),
+        }
+        .inverse_cell(&[f64::MAX], &mut [0.0], W_MIN, &mut out);
         assert_eq!(out[0], f32::MAX);
         assert_eq!(log.inverse_f32(700.0, 0), 0.0);
         assert_eq!(Curve::Linear.inverse_f32(f32::INFINITY, 0), f32::MAX);
@@ -305,22 +432,125 @@ mod tests {
         }
     }
 
+    /// A rotation about the third axis: orthonormal.
+    fn rotation(a: f64) -> Colour {
+        let (s, co) = a.sin_cos();
+        Colour {
+            matrix: vec![co, s, 0.0, -s, co, 0.0, 0.0, 0.0, 1.0],
+        }
+    }
+
+    #[test]
+    fn weights_are_floored_on_valid_cells_and_one_on_invalid_ones() {
+        // Every cell declared valid (as an explicit mask may), including pairs below the
+        // horizon: their product is 0, their weight the floor.
+        let g = crate::grid::parse_grid_spec("halfdiff3:6x8x10,at=edge").unwrap();
+        let geo = g.geometric_mask();
+        let all = vec![true; g.cells()];
+        let raw = g.cos_products();
+        let w = Weight::Cosine.cells(&g, &all);
+        assert!(raw.contains(&0.0) && raw.iter().any(|&p| p > 0.9));
+        for (f, (&p, &w)) in raw.iter().zip(&w).enumerate() {
+            assert_eq!(w, p.max(W_MIN), "cell {f}");
+        }
+        let w = Weight::Cosine.cells(&g, &geo);
+        for (f, (&p, &ok)) in raw.iter().zip(&geo).enumerate() {
+            assert_eq!(w[f], if ok { p.max(W_MIN) } else { 1.0 }, "cell {f}");
+        }
+        let t = Transform {
+            curve: Curve::Linear,
+            colour: None,
+            weight: Some(Weight::Cosine),
+        };
+        let rw = t.reciprocal_weights(&g, &all).unwrap();
+        assert!(
+            rw.iter()
+                .all(|r| r.is_finite() && *r >= 1.0 && *r <= 1e4 + 1.0)
+        );
+        assert_eq!(rw.iter().fold(0f32, |m, r| m.max(*r)), (1.0 / W_MIN) as f32);
+    }
+
+    #[test]
+    fn weighted_headers_say_so_and_unweighted_ones_are_unchanged() {
+        let mut t = Transform {
+            curve: Curve::Log { eps: vec![0.5] },
+            colour: None,
+            weight: None,
+        };
+        let old = r#"{"curve":"log","eps":[0.5]}"#;
+        assert_eq!(serde_json::to_string(&t).unwrap(), old);
+        assert_eq!(serde_json::from_str::<Transform>(old).unwrap(), t);
+        t.weight = Some(Weight::Cosine);
+        let new = r#"{"curve":"cosine_log","eps":[0.5]}"#;
+        assert_eq!(serde_json::to_string(&t).unwrap(), new);
+        assert_eq!(serde_json::from_str::<Transform>(new).unwrap(), t);
+        // A reader from before weights parsed the curve with this very enum: it must refuse
+        // a weighted header rather than decode w·f as f.
+        let e = serde_json::from_str::<Curve>(new).unwrap_err().to_string();
+        assert!(e.contains("unknown variant `cosine_log`"), "{e}");
+        t.curve = Curve::Linear;
+        let lin = r#"{"curve":"cosine_linear"}"#;
+        assert_eq!(serde_json::to_string(&t).unwrap(), lin);
+        assert_eq!(serde_json::from_str::<Transform>(lin).unwrap(), t);
+        assert!(serde_json::from_str::<Curve>(lin).is_err());
+        assert!(serde_json::from_str::<Transform>(r#"{"curve":"sine_log","eps":[1]}"#).is_err());
+    }
+
     proptest! {
         #[test]
         fn transform_round_trips(x in prop::collection::vec(0.0f32..1e4, 3), e in 1e-6f64..1.0,
                                  a in -3.0f64..3.0) {
-            let c = Colour { matrix: {
-                let (s, co) = a.sin_cos();
-                vec![co, s, 0.0, -s, co, 0.0, 0.0, 0.0, 1.0]
-            }};
-            let t = Transform { curve: Curve::Log { eps: vec![e; 3] }, colour: Some(c) };
+            let g = crate::grid::parse_grid_spec("spherical3:1").unwrap();
+            let t = Transform {
+                curve: Curve::Log { eps: vec![e; 3] },
+                colour: Some(rotation(a)),
+                weight: None,
+            };
             t.validate(3).unwrap();
-            let z = t.forward_all(&x, 3);
+            let z = t.forward_all(&x, 3, &g, &[true]);
             let mut y = [0.0; 3];
             let mut back = [0f32; 3];
-            t.inverse_cell(&z, &mut y, &mut back);
+            t.inverse_cell(&z, &mut y, 1.0, &mut back);
             for k in 0..3 {
                 prop_assert!((back[k] - x[k]).abs() <= 1e-5 * (x[k] + e as f32) + 1e-6);
+            }
+        }
+
+        /// Forward then inverse with the cosine weight on random values of every grid kind:
+        /// x comes back to f64 rounding before the f32 store (relative 1e-5 of ε/w + x, the
+        /// log curve's ε being in weighted units), at grazing cells too, and never non-finite.
+        #[test]
+        fn weighted_transform_round_trips(
+            kind in 0usize..4, seed in any::<u64>(), log in any::<bool>(), a in -3.0f64..3.0,
+            e in 1e-6f64..1.0,
+        ) {
+            let spec = ["halfdiff3:5x6x7,warp=sqrt/linear/linear,at=edge",
+                        "halfdiff4:3x4x5x6", "spherical3:6x5x4,theta-max=85",
+                        "spherical4:4x3x5x2,at=edge"][kind];
+            let g = crate::grid::parse_grid_spec(spec).unwrap();
+            let valid = g.geometric_mask();
+            let mut rng = crate::math::SplitMix64::new(seed);
+            let x: Vec<f32> = (0..g.cells() * 3)
+                .map(|_| (rng.next_f64() * 16.0 - 8.0).exp() as f32)
+                .collect();
+            let curve = if log { Curve::Log { eps: vec![e; 3] } } else { Curve::Linear };
+            let t = Transform { curve, colour: Some(rotation(a)), weight: Some(Weight::Cosine) };
+            let z = t.forward_all(&x, 3, &g, &valid);
+            let w = t.cell_weights(&g, &valid).unwrap();
+            let mut y = [0.0; 3];
+            let mut back = [0f32; 3];
+            for (f, &ok) in valid.iter().enumerate() {
+                if !ok {
+                    continue;
+                }
+                t.inverse_cell(&z[f * 3..f * 3 + 3], &mut y, w[f], &mut back);
+                let floor = if log { e / w[f] } else { 0.0 };
+                for k in 0..3 {
+                    let (b, want) = (back[k] as f64, x[f * 3 + k] as f64);
+                    prop_assert!(b.is_finite());
+                    prop_assert!((b - want).abs() <= 1e-5 * (want + floor) + 1e-30,
+                        "{spec} cell {f} w {}: {b} vs {want}", w[f]);
+                }
             }
         }
     }
