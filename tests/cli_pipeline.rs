@@ -91,6 +91,45 @@ fn tables_stream_through_stdin_and_stdout() {
 }
 
 #[test]
+fn compress_to_stdout_writes_only_the_file() {
+    // The report goes to stderr with `-o -`: the stdout bytes are exactly the file `-o FILE`
+    // writes (they used to be followed by the report text, which broke pipes into `inspect`).
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("c.bpk");
+    let args = |o: &str| {
+        vec![
+            "compress".to_string(),
+            "lambert".into(),
+            "--grid".into(),
+            "halfdiff3:6".into(),
+            "--codec".into(),
+            "dct:step=0.01".into(),
+            "--samples".into(),
+            "500".into(),
+            "-o".into(),
+            o.to_string(),
+        ]
+    };
+    let piped = brdfpack()
+        .args(args("-"))
+        .assert()
+        .success()
+        .get_output()
+        .clone();
+    brdfpack()
+        .args(args(file.to_str().unwrap()))
+        .assert()
+        .success();
+    assert_eq!(piped.stdout, std::fs::read(&file).unwrap());
+    assert!(String::from_utf8_lossy(&piped.stderr).contains("codec: "));
+    brdfpack()
+        .args(["inspect", "-"])
+        .write_stdin(piped.stdout)
+        .assert()
+        .success();
+}
+
+#[test]
 fn pack_default_material_reports_every_metric() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("p.bpk");

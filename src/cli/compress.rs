@@ -97,44 +97,49 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
     atomic::write_output(&a.output, &bytes)?;
     let raw = table.data().len() * 4;
     let m = &measured.metrics;
-    outln!("codec: {}", measured.spec.summary());
-    outln!("preserves: {}", measured.spec.preserves());
-    outln!(
+    use std::fmt::Write as _;
+    let mut r = String::new();
+    writeln!(r, "codec: {}", measured.spec.summary())?;
+    writeln!(r, "preserves: {}", measured.spec.preserves())?;
+    writeln!(
+        r,
         "size: {} bytes file ({} payload), {:.4} bits/stored sample, {:.1}× smaller than raw f32 ({raw} bytes)",
         bytes.len(),
         measured.payload.len(),
         8.0 * bytes.len() as f64 / table.data().len() as f64,
         raw as f64 / bytes.len() as f64
-    );
-    outln!(
+    )?;
+    writeln!(
+        r,
         "error vs the input table (both interpolated linearly), uniform set, {} pairs, seed {}, ε = {:.3e}:",
-        a.samples,
-        a.seed,
-        m.epsilon
-    );
-    outln!(
+        a.samples, a.seed, m.epsilon
+    )?;
+    writeln!(
+        r,
         "  log_rmse {:.4e}  p99_rel_core {:.4e}  rel_rmse_core {:.4e}  rmse {:.4e}  max_rel {:.4e}  nonfinite {}  negative {}",
-        m.log_rmse,
-        m.p99_rel_core,
-        m.rel_rmse_core,
-        m.rmse,
-        m.max_rel,
-        m.nonfinite,
-        m.negative
-    );
+        m.log_rmse, m.p99_rel_core, m.rel_rmse_core, m.rmse, m.max_rel, m.nonfinite, m.negative
+    )?;
     if let Some(h) = &measured.held_out {
-        println!(
+        writeln!(
+            r,
             "held-out set (uniform, {} pairs, seed {}; the search accepts a candidate only when \
              it meets every bound × {} on seed {} and every bound here):",
             a.samples,
             a.seed.wrapping_add(1),
             crate::codec::search::MARGIN,
             a.seed
-        );
-        println!(
+        )?;
+        writeln!(
+            r,
             "  log_rmse {:.4e}  p99_rel_core {:.4e}  rel_rmse_core {:.4e}  rmse {:.4e}  max_rel {:.4e}",
             h.log_rmse, h.p99_rel_core, h.rel_rmse_core, h.rmse, h.max_rel
-        );
+        )?;
+    }
+    // With `-o -` the file's bytes are stdout: the report must not follow them there.
+    if a.output.as_os_str() == "-" {
+        eprint!("{r}");
+    } else {
+        out!("{r}");
     }
     Ok(0)
 }
