@@ -246,7 +246,7 @@ const MAX_EXP: u32 = 31;
 
 /// Neighbour magnitude sum → bucket.
 #[inline]
-fn nbr_bucket(m: u32) -> usize {
+const fn nbr_bucket(m: u32) -> usize {
     match m {
         0 => 0,
         1 => 1,
@@ -435,22 +435,12 @@ fn decode_nonzero(
     Ok(if neg { -mag } else { mag })
 }
 
-/// `nbr_bucket` for the sums a 3-D box can produce, tabulated up to the last bucket's start.
+/// [`nbr_bucket`] tabulated up to the start of the last bucket (the 3-D walk's lookup).
 const NBR_LUT: [u8; 257] = {
     let mut t = [0u8; 257];
     let mut m = 0;
     while m < 257 {
-        t[m] = match m {
-            0 => 0,
-            1 => 1,
-            2 => 2,
-            3..=4 => 3,
-            5..=8 => 4,
-            9..=16 => 5,
-            17..=48 => 6,
-            49..=256 => 7,
-            _ => 8,
-        };
+        t[m] = nbr_bucket(m as u32) as u8;
         m += 1;
     }
     t
