@@ -463,40 +463,47 @@ fn decode_box_3d(
     // can borrow the rest of the model.
     let mut zero_ctx =
         model.zero[cc * BANDS * NBR_BUCKETS..(cc + 1) * BANDS * NBR_BUCKETS].to_vec();
-    let band_of =
-        |sum: usize| ((usize::BITS - (sum + 1).leading_zeros() - 1) as usize).min(BANDS - 1);
-    let mut b = 0;
+    // Offset of the zero-flag contexts of each band, by the sum of the frequency indices.
+    let band_offset: Vec<usize> = (0..e0 + e1 + e2)
+        .map(|sum| ((usize::BITS - (sum + 1).leading_zeros() - 1) as usize).min(BANDS - 1))
+        .map(|band| band * NBR_BUCKETS)
+        .collect();
+    // Missing neighbours (index 0 along an axis) read as 0: the same magnitude sum (nothing
+    // added) and sign context (signum 0 ↦ 1, the generic walk's "no neighbour") as `BoxWalk`.
+    let zeros = vec![0i32; e2];
     for i0 in 0..e0 {
         for i1 in 0..e1 {
+            let row = (i0 * e1 + i1) * e2;
+            let (before, rest) = codes.split_at_mut(row);
+            let cur = &mut rest[..e2];
+            let up = if i1 > 0 {
+                &before[row - e2..]
+            } else {
+                &zeros[..]
+            };
+            let back = if i0 > 0 {
+                &before[row - s0..row - s0 + e2]
+            } else {
+                &zeros[..]
+            };
+            let offsets = &band_offset[i0 + i1..i0 + i1 + e2];
+            let mut left = 0i32;
             for i2 in 0..e2 {
-                let mut m = 0u32;
-                if i2 > 0 {
-                    m += codes[b - 1].unsigned_abs();
-                }
-                if i1 > 0 {
-                    m = m.saturating_add(codes[b - e2].unsigned_abs());
-                }
-                if i0 > 0 {
-                    m = m.saturating_add(codes[b - s0].unsigned_abs());
-                }
+                // Three magnitudes below 2^31 each: no overflow in u64, and every sum from
+                // 257 up (where `saturating_add` could have stopped) is bucket 8 either way.
+                let m = left.unsigned_abs() as u64
+                    + up[i2].unsigned_abs() as u64
+                    + back[i2].unsigned_abs() as u64;
                 let nb = if m < 257 {
                     NBR_LUT[m as usize] as usize
                 } else {
                     8
                 };
-                let band = band_of(i0 + i1 + i2);
-                if rc.decode(&mut zero_ctx[band * NBR_BUCKETS + nb]) {
-                    let sgn = |back: usize, ok: bool| -> usize {
-                        if ok {
-                            (codes[b - back].signum() + 1) as usize
-                        } else {
-                            1
-                        }
-                    };
-                    let signs = sgn(1, i2 > 0) * 3 + sgn(s0, i0 > 0);
-                    codes[b] = decode_nonzero(rc, model, cc, nb, signs)?;
+                if rc.decode(&mut zero_ctx[offsets[i2] + nb]) {
+                    let signs = (left.signum() + 1) as usize * 3 + (back[i2].signum() + 1) as usize;
+                    cur[i2] = decode_nonzero(rc, model, cc, nb, signs)?;
                 }
-                b += 1;
+                left = cur[i2];
             }
         }
     }
