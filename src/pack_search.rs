@@ -285,4 +285,102 @@ mod tests {
             );
         }
     }
+
+    const SMALL_LADDER: [&str; 3] = [
+        "halfdiff3:8x8x16,warp=sqrt/linear/linear,at=edge",
+        "halfdiff3:16x16x32,warp=sqrt/linear/linear,at=edge",
+        "halfdiff3:32x32x64,warp=sqrt/linear/linear,at=edge",
+    ];
+
+    fn run(model: &Model, budget: &str) -> Result<GridSearch> {
+        search_grids(
+            model,
+            &SMALL_LADDER,
+            &Budget::parse(budget).unwrap(),
+            &SampleSet::uniform(2048, 1),
+            19,
+            &TabulateOptions::default(),
+        )
+    }
+
+    fn summary(g: &GridSearch) -> String {
+        g.trials
+            .iter()
+            .map(|t| {
+                let o = match &t.outcome {
+                    GridOutcome::Packed { bytes, metrics, .. } => format!(
+                        "{bytes} B log_rmse {:.3e} p99 {:.3e}",
+                        metrics.log_rmse, metrics.p99_rel_core
+                    ),
+                    GridOutcome::Skipped { reason } => reason.clone(),
+                };
+                format!(
+                    "{} tab {:.3e}/{:.3e}: {o}{}\n",
+                    t.grid,
+                    t.tabulation.log_rmse,
+                    t.tabulation.p99_rel_core,
+                    if t.chosen { " *" } else { "" }
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_coarser_grid_wins_when_the_budget_allows_and_its_error_is_the_checks() {
+        let model = Model::parse("ggx:alpha=0.5").unwrap();
+        // Loose budget: 8x8x16's own table misses it, 16x16x32 and 32x32x64 both meet it and
+        // the coarser file is the smaller (1,285 vs 1,296 bytes when written).
+        let g = run(&model, "log_rmse=0.01,p99_rel_core=0.2").unwrap();
+        let chosen: Vec<bool> = g.trials.iter().map(|t| t.chosen).collect();
+        assert_eq!(chosen, [false, true, false], "{}", summary(&g));
+        assert!(matches!(g.trials[0].outcome, GridOutcome::Skipped { .. }));
+        let bytes: Vec<usize> = g
+            .trials
+            .iter()
+            .filter_map(|t| match t.outcome {
+                GridOutcome::Packed { bytes, .. } => Some(bytes),
+                GridOutcome::Skipped { .. } => None,
+            })
+            .collect();
+        assert_eq!(bytes.len(), 2);
+        assert!(bytes[0] < bytes[1], "{}", summary(&g));
+        assert_eq!(g.choice.file.len(), bytes[0]);
+        assert_eq!(g.choice.grid, SMALL_LADDER[1]);
+        // Independent recompute: read the bytes back as a reader would and check them
+        // against the model on the same set.
+        let back = native::from_bytes(&g.choice.file, std::path::Path::new("mem")).unwrap();
+        assert_eq!(back.grid(), &parse_grid_spec(SMALL_LADDER[1]).unwrap());
+        let cand = InterpolatedTable {
+            table: back,
+            interp: Interp::Linear,
+        };
+        let r = check_set(&model, &cand, &SampleSet::uniform(2048, 1)).unwrap();
+        assert_eq!(r.combined, g.choice.metrics);
+        let budget = Budget::parse("log_rmse=0.01,p99_rel_core=0.2").unwrap();
+        assert!(budget.margined().met_by(&r.combined));
+        // A tighter budget that 16x16x32's own table misses moves the choice to 32x32x64.
+        let g = run(&model, "log_rmse=0.005,p99_rel_core=0.1").unwrap();
+        let chosen: Vec<bool> = g.trials.iter().map(|t| t.chosen).collect();
+        assert_eq!(chosen, [false, false, true], "{}", summary(&g));
+        // Same inputs, same bytes.
+        let again = run(&model, "log_rmse=0.005,p99_rel_core=0.1").unwrap();
+        assert_eq!(again.choice.file, g.choice.file);
+    }
+
+    #[test]
+    fn an_unmeetable_budget_fails_naming_the_closest_values() {
+        let model = Model::parse("ggx:alpha=0.5").unwrap();
+        let e = run(&model, "log_rmse=0.002,p99_rel_core=0.05")
+            .err()
+            .expect("32x32x64's own table has log_rmse 2.76e-3");
+        assert_eq!(e.exit_code(), 1);
+        let msg = e.to_string();
+        for needle in [
+            "no grid meets log_rmse ≤ 0.002, p99_rel_core ≤ 0.05 against the model",
+            "best reached: log_rmse 2.7591e-3, p99_rel_core 3.9300e-2 on halfdiff3:32x32x64",
+            "no file written",
+        ] {
+            assert!(msg.contains(needle), "{needle}: {msg}");
+        }
+    }
 }
