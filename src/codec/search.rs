@@ -412,12 +412,7 @@ pub fn search_against(
     search_with(table, &ev, budget, level)
 }
 
-fn search_with(
-    table: &Table,
-    ev: &Evaluator,
-    budget: &Budget,
-    level: i32,
-) -> Result<SearchResult> {
+fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Result<SearchResult> {
     let mut st = State {
         budget,
         best: None,
