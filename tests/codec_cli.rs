@@ -5,6 +5,7 @@ use brdfpack::codec::{CodecSpec, testdata};
 use brdfpack::grid::parse_grid_spec;
 use brdfpack::io::native;
 use brdfpack::tabulate::tabulate;
+use predicates::prelude::PredicateBooleanExt;
 use std::path::Path;
 
 fn small_table_file(dir: &Path) -> std::path::PathBuf {
@@ -96,4 +97,76 @@ fn compress_lossless_is_bit_exact_and_bad_specs_exit_2() {
         .args(["--max-error", "bogus=1"])
         .assert()
         .code(2);
+}
+
+/// `pack MODEL --max-error` with an explicit grid: a one-grid search measured against the
+/// model, reported in `grid_search`, whose error is the final check's.
+#[test]
+fn pack_a_model_with_a_budget_reports_the_grid_search() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.bpk");
+    let o = Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args(["pack", "ggx:alpha=0.5", "-o", out.to_str().unwrap()])
+        .args([
+            "--grid",
+            "halfdiff3:16x16x32,warp=sqrt/linear/linear,at=edge",
+            "--max-error",
+            "log_rmse=0.01,p99_rel_core=0.2",
+            "--samples",
+            "2048",
+            "--json",
+        ])
+        .assert()
+        .success()
+        .get_output()
+        .stdout
+        .clone();
+    let v: serde_json::Value = serde_json::from_slice(&o).unwrap();
+    let gs = v["grid_search"].as_array().unwrap();
+    assert_eq!(gs.len(), 1, "{v}");
+    assert_eq!(gs[0]["status"], "packed");
+    assert_eq!(gs[0]["chosen"], true);
+    assert_eq!(gs[0]["bytes"], v["bytes"]);
+    assert_eq!(v["budget"]["against"], "model");
+    // The search's measurement is the check's: same bytes, same set, same model.
+    for k in ["log_rmse", "p99_rel_core"] {
+        assert_eq!(
+            gs[0]["metrics"][k], v["check"]["uniform"]["combined"][k],
+            "{k}"
+        );
+    }
+    assert!(
+        v["check"]["uniform"]["combined"]["log_rmse"]
+            .as_f64()
+            .unwrap()
+            <= 0.01 * 0.98
+    );
+    assert_eq!(
+        std::fs::read(&out).unwrap().len() as u64,
+        v["bytes"].as_u64().unwrap()
+    );
+}
+
+/// No grid of the default ladder can meet the budget: exit 1, the closest values, no file.
+#[test]
+fn pack_with_an_unmeetable_budget_exits_1_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.bpk");
+    Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args(["pack", "ggx:alpha=0.5", "-o", out.to_str().unwrap()])
+        .args(["--max-error", "log_rmse=1e-5", "--samples", "1024"])
+        .assert()
+        .code(1)
+        .stdout("")
+        .stderr(
+            predicates::str::contains("no grid meets log_rmse ≤ 0.00001 against the model")
+                .and(predicates::str::contains("best reached: log_rmse "))
+                .and(predicates::str::contains(
+                    "halfdiff3:128x128x256,warp=sqrt/linear/linear,at=edge",
+                ))
+                .and(predicates::str::contains("no file written")),
+        );
+    assert!(!out.exists());
 }

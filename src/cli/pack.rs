@@ -4,11 +4,12 @@
 use super::check::{Bounds, verdict};
 use super::common::{Lookup, SamplingArgs, Source, stderr_is_terminal};
 use crate::check::{CheckOptions, check, fmt_num};
-use crate::codec::search::{Budget, search};
+use crate::codec::search::{Budget, MARGIN, held_out_set, search};
 use crate::codec::{CodecRequest, CodecSpec};
 use crate::grid::parse_grid_spec;
 use crate::io::{atomic, native};
 use crate::model::Model;
+use crate::pack_search::{GridOutcome, GridTrial, default_grid_spec, grid_ladder, search_grids};
 use crate::table::{Interp, InterpolatedTable};
 use crate::tabulate::tabulate;
 use clap::Args;
@@ -39,8 +40,10 @@ pub struct PackArgs {
     /// Codec of the file (docs/compression.md); default `lossless` (bit-exact).
     #[arg(long, conflicts_with = "max_error")]
     pub codec: Option<String>,
-    /// Error budget, e.g. `log_rmse=0.01,p99_rel_core=0.2`: the smallest codec meeting it on
-    /// the uniform set (measured against the tabulated table) is chosen.
+    /// Error budget, e.g. `log_rmse=0.01,p99_rel_core=0.2`: the smallest file meeting it on
+    /// the uniform set is chosen. For a model the error is measured against the model and,
+    /// without `--grid`, the grid resolution is searched too (docs/compression.md); for a
+    /// table or measured file, against the tabulated table.
     #[arg(long)]
     pub max_error: Option<String>,
     /// One JSON object instead of report lines.
@@ -70,6 +73,36 @@ struct PackReport {
     decode_s: f64,
     check: crate::check::CheckReport,
     bounds_exceeded: Vec<String>,
+    /// `--max-error` against a model: the budget, the search's sets and every grid tried.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    budget: Option<BudgetReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    grid_search: Option<Vec<GridTrial>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    grid_search_s: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct BudgetReport {
+    bounds: Vec<(String, f64)>,
+    /// What the error is measured against: `model` or `table`.
+    against: &'static str,
+    set: String,
+    samples: usize,
+    seed: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    held_out_seed: Option<u64>,
+    margin: f64,
+}
+
+/// The file to write and how it was made.
+struct Packed {
+    table: crate::table::Table,
+    codec: CodecSpec,
+    bytes: Vec<u8>,
+    tabulate_s: f64,
+    encode_s: f64,
+    grid_search: Option<(Vec<GridTrial>, f64)>,
 }
 
 pub fn run(a: PackArgs) -> anyhow::Result<i32> {
@@ -79,34 +112,72 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         Some(s) => a.symmetry.apply(Source::open(s)?),
         None => Source::Model(Model::default_material()),
     };
+    let is_model = matches!(source, Source::Model(_));
     let src = source.into_brdf(Lookup::Linear)?;
-    let grid = match &a.grid {
-        Some(g) => parse_grid_spec(g)?,
-        None => default_grid(src.as_ref()),
-    };
-    let t0 = Instant::now();
-    let table = tabulate(
-        src.as_ref(),
-        &grid,
-        &a.symmetry.options(stderr_is_terminal() && !a.quiet),
-    )?;
-    let tabulate_s = t0.elapsed().as_secs_f64();
-    let t1 = Instant::now();
-    let codec = match (&a.codec, &a.max_error) {
-        (_, Some(b)) => {
-            let budget = Budget::parse(b)?;
+    let budget = a.max_error.as_deref().map(Budget::parse).transpose()?;
+    let tab_opts = a.symmetry.options(stderr_is_terminal() && !a.quiet);
+    let packed = match &budget {
+        // A model is the truth the file stands for: bound the error against it.
+        Some(budget) if is_model => {
+            let ladder = match &a.grid {
+                Some(g) => vec![g.as_str()],
+                None => grid_ladder(src.as_ref()),
+            };
             let set = crate::check::SampleSet::uniform(a.samples, a.seed);
-            search(&table, &budget, &set, 19)?.best.spec
+            let t0 = Instant::now();
+            let found = search_grids(src.as_ref(), &ladder, budget, &set, 19, &tab_opts)?;
+            let total_s = t0.elapsed().as_secs_f64();
+            Packed {
+                table: found.choice.table,
+                codec: found.choice.codec,
+                bytes: found.choice.file,
+                tabulate_s: found.choice.tabulate_s,
+                encode_s: found.choice.search_s,
+                grid_search: Some((found.trials, total_s)),
+            }
         }
-        (c, None) => CodecRequest::parse(c.as_deref().unwrap_or("lossless"))?.resolve(&table)?,
+        _ => {
+            let grid = match &a.grid {
+                Some(g) => parse_grid_spec(g)?,
+                None => default_grid(src.as_ref()),
+            };
+            let t0 = Instant::now();
+            let table = tabulate(src.as_ref(), &grid, &tab_opts)?;
+            let tabulate_s = t0.elapsed().as_secs_f64();
+            let t1 = Instant::now();
+            let codec = match (&a.codec, &budget) {
+                (_, Some(budget)) => {
+                    let set = crate::check::SampleSet::uniform(a.samples, a.seed);
+                    search(&table, budget, &set, 19)?.best.spec
+                }
+                (c, None) => {
+                    CodecRequest::parse(c.as_deref().unwrap_or("lossless"))?.resolve(&table)?
+                }
+            };
+            let bytes = native::to_bytes(&table, &codec)?;
+            Packed {
+                table,
+                codec,
+                bytes,
+                tabulate_s,
+                encode_s: t1.elapsed().as_secs_f64(),
+                grid_search: None,
+            }
+        }
     };
-    let bytes = native::to_bytes(&table, &codec)?;
-    let encode_s = t1.elapsed().as_secs_f64();
+    let Packed {
+        table,
+        codec,
+        bytes,
+        tabulate_s,
+        encode_s,
+        grid_search,
+    } = packed;
+    let grid = table.grid().clone();
     // Check what a reader will get: decode the bytes we are about to write.
     let t2 = Instant::now();
     let back = native::from_bytes(&bytes, &a.output)?;
     let decode_s = t2.elapsed().as_secs_f64();
-    atomic::write_output(&a.output, &bytes)?;
     let cells = (back.grid().clone(), back.valid().to_vec());
     let cand = InterpolatedTable {
         table: back,
@@ -122,6 +193,19 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             all_sets: true,
         },
     )?;
+    // The search measured these very bytes on this very set; a mismatch would be a bug, and
+    // a file that misses its budget must never be written.
+    if let (Some(b), true) = (&budget, is_model)
+        && !b.met_by(&report.uniform.combined)
+    {
+        return Err(crate::Error::Failure(format!(
+            "--max-error: the packed file misses the budget against the model on the check \
+             ({}); no file written",
+            b.exceeded(&report.uniform.combined).join(", ")
+        ))
+        .into());
+    }
+    atomic::write_output(&a.output, &bytes)?;
     let failed = verdict(&report, &a.bounds);
     let raw = table.data().len() * 4;
     let r = PackReport {
@@ -140,6 +224,20 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         decode_s,
         check: report,
         bounds_exceeded: failed.clone(),
+        budget: budget.map(|b| {
+            let set = crate::check::SampleSet::uniform(0, a.seed);
+            BudgetReport {
+                bounds: b.bounds,
+                against: if is_model { "model" } else { "table" },
+                set: set.name.clone(),
+                samples: a.samples,
+                seed: a.seed,
+                held_out_seed: held_out_set(&set).and_then(|h| h.seed),
+                margin: MARGIN,
+            }
+        }),
+        grid_search_s: grid_search.as_ref().map(|g| g.1),
+        grid_search: grid_search.map(|g| g.0),
     };
     let to_stderr = a.output.as_os_str() == "-";
     let out = if a.json {
@@ -161,14 +259,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
 
 /// A grid that respects the source's symmetries at about MERL's resolution.
 fn default_grid(src: &dyn crate::brdf::Brdf) -> crate::grid::Grid {
-    let spec = if !src.is_isotropic() {
-        "halfdiff4:64"
-    } else if !src.is_reciprocal() {
-        "spherical3:90x90x180"
-    } else {
-        "merl"
-    };
-    parse_grid_spec(spec).expect("built-in grid specs parse")
+    parse_grid_spec(default_grid_spec(src)).expect("built-in grid specs parse")
 }
 
 fn human(r: &PackReport) -> String {
@@ -191,6 +282,65 @@ fn human(r: &PackReport) -> String {
         "time          tabulate {:.3} s, encode {:.3} s, decode {:.3} s",
         r.tabulate_s, r.encode_s, r.decode_s
     );
+    if let Some(b) = &r.budget {
+        let bounds: Vec<String> = b.bounds.iter().map(|(k, v)| format!("{k} ≤ {v}")).collect();
+        let _ = writeln!(
+            s,
+            "budget        {} against the {} ({} set, {} pairs, seed {}: bounds × {}{})",
+            bounds.join(", "),
+            b.against,
+            b.set,
+            b.samples,
+            b.seed,
+            b.margin,
+            b.held_out_seed
+                .map_or(String::new(), |h| format!("; held-out seed {h}: bounds"))
+        );
+    }
+    if let (Some(trials), Some(t)) = (&r.grid_search, r.grid_search_s) {
+        let _ = writeln!(
+            s,
+            "grid search   {} grid(s) in {t:.1} s; error of the uncompressed table, then of the file, against the model:",
+            trials.len()
+        );
+        let names: Vec<&str> = r
+            .budget
+            .as_ref()
+            .map(|b| b.bounds.iter().map(|(k, _)| k.as_str()).collect())
+            .unwrap_or_default();
+        let values = |m: &crate::check::Metrics| {
+            names
+                .iter()
+                .map(|k| format!("{k} {}", fmt_num(m.get(k))))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        for tr in trials {
+            let mark = if tr.chosen { "*" } else { " " };
+            let _ = writeln!(
+                s,
+                "  {mark} {} ({} cells, tabulated in {:.1} s): table {}",
+                tr.grid,
+                tr.cells,
+                tr.tabulate_s,
+                values(&tr.tabulation)
+            );
+            let _ = match &tr.outcome {
+                GridOutcome::Packed {
+                    bytes,
+                    metrics,
+                    search_s,
+                    ..
+                } => writeln!(
+                    s,
+                    "      {bytes} bytes, {} (codec search {search_s:.1} s){}",
+                    values(metrics),
+                    if tr.chosen { "  <- chosen" } else { "" }
+                ),
+                GridOutcome::Skipped { reason } => writeln!(s, "      skipped: {reason}"),
+            };
+        }
+    }
     let _ = writeln!(
         s,
         "check         uniform set, {} pairs, seed {}, linear interpolation; ε = {:.3e}",

@@ -1,8 +1,10 @@
 //! The codec search: the smallest file meeting an error budget (`--max-error`).
 //!
 //! Every candidate is really encoded, decoded by the same code that reads files, interpolated
-//! and measured with [`crate::check::metrics`] against the uncompressed table on the budget's
-//! sample set; the reported error is that measurement. Candidates: the DCT chain with the log
+//! and measured with [`crate::check::metrics`] against a reference on the budget's sample set:
+//! the uncompressed table ([`search`]), or the source the table was tabulated from
+//! ([`search_against`], so that tabulation, interpolation and codec error are bounded
+//! together); the reported error is that measurement. Candidates: the DCT chain with the log
 //! curve (ε = 1e-3, 3e-3 and 1e-2 of each channel's mean) and KLT colour decorrelation, with the
 //! quantization step found by bisection in log(step) (error grows with step); the lossless
 //! chain when no lossy candidate meets the budget. The cosine weight (`weight=cosine`) is not a
@@ -14,6 +16,7 @@ use super::domain::Domain;
 use super::entropy::Zstd;
 use super::transform::Transform;
 use super::{CodecRequest, CodecSpec, CurveRequest, Layout, dct, dct_coefficients, transform_for};
+use crate::brdf::Brdf;
 use crate::check::{BOUNDABLE, Metrics, SampleSet, evaluate_pairs, metrics};
 use crate::table::{Interp, InterpolatedTable, Table};
 use crate::{Error, Result};
@@ -72,7 +75,7 @@ impl Budget {
     }
 
     /// How far over budget (max ratio measured/bound; ≤ 1 when met).
-    fn excess(&self, m: &Metrics) -> f64 {
+    pub fn excess(&self, m: &Metrics) -> f64 {
         self.bounds
             .iter()
             .map(|(k, v)| m.get(k).unwrap_or(f64::INFINITY) / v.max(f64::MIN_POSITIVE))
@@ -93,7 +96,8 @@ pub struct Measured {
     pub held_out: Option<Metrics>,
 }
 
-/// A sample set with its reference values (the uncompressed table at its pairs).
+/// A sample set with its reference values (the uncompressed table or the source at its
+/// pairs).
 struct Scored<'a> {
     set: &'a SampleSet,
     reference: Vec<f64>,
@@ -106,24 +110,20 @@ pub struct Evaluator<'a> {
     held: Option<Scored<'a>>,
 }
 
-fn reference(table: &Table, set: &SampleSet) -> Result<Vec<f64>> {
-    let r = InterpolatedTable {
+fn linear(table: &Table) -> InterpolatedTable {
+    InterpolatedTable {
         table: table.clone(),
         interp: Interp::Linear,
-    };
-    Ok(evaluate_pairs(&r, &r, set)?.0)
+    }
+}
+
+fn reference(r: &dyn Brdf, set: &SampleSet) -> Result<Vec<f64>> {
+    Ok(evaluate_pairs(r, r, set)?.0)
 }
 
 impl<'a> Evaluator<'a> {
     pub fn new(table: &'a Table, set: &'a SampleSet) -> Result<Evaluator<'a>> {
-        Ok(Evaluator {
-            table,
-            main: Scored {
-                set,
-                reference: reference(table, set)?,
-            },
-            held: None,
-        })
+        Evaluator::against(table, &linear(table), set, None)
     }
 
     /// An evaluator that also measures every candidate on `held` (reported in
@@ -133,12 +133,64 @@ impl<'a> Evaluator<'a> {
         set: &'a SampleSet,
         held: &'a SampleSet,
     ) -> Result<Evaluator<'a>> {
-        let mut e = Evaluator::new(table, set)?;
-        e.held = Some(Scored {
-            set: held,
-            reference: reference(table, held)?,
-        });
-        Ok(e)
+        Evaluator::against(table, &linear(table), set, Some(held))
+    }
+
+    /// An evaluator of encodings of `table` measured against `reference` (e.g. the model the
+    /// table was tabulated from) on `set` and, when given, `held`.
+    pub fn against(
+        table: &'a Table,
+        reference_brdf: &dyn Brdf,
+        set: &'a SampleSet,
+        held: Option<&'a SampleSet>,
+    ) -> Result<Evaluator<'a>> {
+        if reference_brdf.channels().len() != table.channels().len() {
+            return Err(Error::input(format!(
+                "codec search: the reference {} has {} channels, the table {}",
+                reference_brdf.describe(),
+                reference_brdf.channels().len(),
+                table.channels().len()
+            )));
+        }
+        Ok(Evaluator {
+            table,
+            main: Scored {
+                set,
+                reference: reference(reference_brdf, set)?,
+            },
+            held: held
+                .map(|h| {
+                    Ok::<_, Error>(Scored {
+                        set: h,
+                        reference: reference(reference_brdf, h)?,
+                    })
+                })
+                .transpose()?,
+        })
+    }
+
+    /// Metrics of the uncompressed table itself (linear interpolation) against the reference:
+    /// the floor no encoding of it goes below, up to chance.
+    pub fn measure_uncompressed(&self) -> Result<(Metrics, Option<Metrics>)> {
+        let cand = linear(self.table);
+        Ok((
+            self.score(&cand, &self.main)?,
+            self.held
+                .as_ref()
+                .map(|h| self.score(&cand, h))
+                .transpose()?,
+        ))
+    }
+
+    fn score(&self, cand: &InterpolatedTable, s: &Scored) -> Result<Metrics> {
+        let (_, g) = evaluate_pairs(cand, cand, s.set)?;
+        Ok(metrics(
+            s.set,
+            &s.reference,
+            &g,
+            self.table.channels().len(),
+            None,
+        ))
     }
 
     /// Metrics of an already-encoded payload (decoded exactly as a reader would).
@@ -155,15 +207,14 @@ impl<'a> Evaluator<'a> {
             )?,
             interp: Interp::Linear,
         };
-        let c = t.channels().len();
-        let score = |s: &Scored| -> Result<Metrics> {
-            let (_, g) = evaluate_pairs(&cand, &cand, s.set)?;
-            Ok(metrics(s.set, &s.reference, &g, c, None))
-        };
         Ok(Measured {
             spec: spec.clone(),
-            metrics: score(&self.main)?,
-            held_out: self.held.as_ref().map(score).transpose()?,
+            metrics: self.score(&cand, &self.main)?,
+            held_out: self
+                .held
+                .as_ref()
+                .map(|h| self.score(&cand, h))
+                .transpose()?,
             payload,
         })
     }
@@ -219,14 +270,52 @@ pub fn held_out_set(set: &SampleSet) -> Option<SampleSet> {
 
 /// True when `m` meets the budget with the margin on its set and plainly on the held-out set.
 fn accepts(budget: &Budget, m: &Measured) -> bool {
-    let tight = Budget {
-        bounds: budget
+    accepts_metrics(budget, &m.metrics, m.held_out.as_ref())
+}
+
+/// The search's acceptance rule on metrics: every bound × [`MARGIN`] on the search's set,
+/// every bound on the held-out set (when there is one).
+pub fn accepts_metrics(budget: &Budget, main: &Metrics, held: Option<&Metrics>) -> bool {
+    budget.margined().met_by(main) && held.is_none_or(|h| budget.met_by(h))
+}
+
+impl Budget {
+    /// Every bound × [`MARGIN`].
+    pub fn margined(&self) -> Budget {
+        Budget {
+            bounds: self
+                .bounds
+                .iter()
+                .map(|(k, v)| (k.clone(), v * MARGIN))
+                .collect(),
+        }
+    }
+
+    /// The bounds `m` exceeds, as `name value > bound` (and `nonfinite N` when there are
+    /// non-finite values); empty when met.
+    pub fn exceeded(&self, m: &Metrics) -> Vec<String> {
+        let mut out: Vec<String> = self
             .bounds
             .iter()
-            .map(|(k, v)| (k.clone(), v * MARGIN))
-            .collect(),
-    };
-    tight.met_by(&m.metrics) && m.held_out.as_ref().is_none_or(|h| budget.met_by(h))
+            .filter_map(|(k, v)| {
+                let x = m.get(k).unwrap_or(f64::INFINITY);
+                (x > *v).then(|| format!("{k} {x:.4e} > {v:.4e}"))
+            })
+            .collect();
+        if m.nonfinite > 0 {
+            out.push(format!("nonfinite {}", m.nonfinite));
+        }
+        out
+    }
+
+    /// `log_rmse ≤ 0.01, p99_rel_core ≤ 0.2`.
+    pub fn describe(&self) -> String {
+        self.bounds
+            .iter()
+            .map(|(k, v)| format!("{k} ≤ {v}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
 }
 
 /// The search state: every trial and the smallest accepted encoding so far.
@@ -306,11 +395,26 @@ struct EpsCandidate {
 ///   with a local bisection of the step.
 /// - Phase 3: the lossless chain when nothing lossy is accepted.
 pub fn search(table: &Table, budget: &Budget, set: &SampleSet, level: i32) -> Result<SearchResult> {
+    search_against(table, &linear(table), budget, set, level)
+}
+
+/// [`search`] with every candidate measured against `reference` instead of the uncompressed
+/// table: for a table tabulated from a model, the budget then bounds tabulation,
+/// interpolation and codec error together. The bisections assume that error grows with the
+/// step, which holds above the floor of the table's own error ([`Evaluator::measure_uncompressed`]).
+pub fn search_against(
+    table: &Table,
+    reference: &dyn Brdf,
+    budget: &Budget,
+    set: &SampleSet,
+    level: i32,
+) -> Result<SearchResult> {
     let held = held_out_set(set);
-    let ev = match &held {
-        Some(h) => Evaluator::with_held_out(table, set, h)?,
-        None => Evaluator::new(table, set)?,
-    };
+    let ev = Evaluator::against(table, reference, set, held.as_ref())?;
+    search_with(table, &ev, budget, level)
+}
+
+fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Result<SearchResult> {
     let mut st = State {
         budget,
         best: None,
