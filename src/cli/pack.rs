@@ -9,7 +9,9 @@ use crate::codec::{CodecRequest, CodecSpec};
 use crate::grid::parse_grid_spec;
 use crate::io::{atomic, native};
 use crate::model::Model;
-use crate::pack_search::{GridOutcome, GridTrial, default_grid_spec, grid_ladder, search_grids};
+use crate::pack_search::{
+    GridOutcome, GridTrial, always_searched, default_grid_spec, grid_ladder, search_grids,
+};
 use crate::table::{Interp, InterpolatedTable};
 use crate::tabulate::tabulate;
 use clap::Args;
@@ -119,13 +121,13 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     let packed = match &budget {
         // A model is the truth the file stands for: bound the error against it.
         Some(budget) if is_model => {
-            let ladder = match &a.grid {
-                Some(g) => vec![g.as_str()],
-                None => grid_ladder(src.as_ref()),
+            let (ladder, always) = match &a.grid {
+                Some(g) => (vec![g.as_str()], 1),
+                None => (grid_ladder(src.as_ref()), always_searched(src.as_ref())),
             };
             let set = crate::check::SampleSet::uniform(a.samples, a.seed);
             let t0 = Instant::now();
-            let found = search_grids(src.as_ref(), &ladder, budget, &set, 19, &tab_opts)?;
+            let found = search_grids(src.as_ref(), &ladder, always, budget, &set, 19, &tab_opts)?;
             let total_s = t0.elapsed().as_secs_f64();
             Packed {
                 table: found.choice.table,
