@@ -6,7 +6,8 @@
 //! the DCT spec that `--max-error log_rmse=0.002,p99_rel_core=0.05` selects for the table (the
 //! search's ε and step, written out so the bench does not rerun the search). `decode` is the
 //! decoder files are read with; `decode_reference` the previous one
-//! (`codec::reference`), measured in the same run for the before/after ratio.
+//! (`codec::reference`), measured in the same run for the before/after ratio (for `tucker`
+//! the f64 reference expansion). `cargo bench --bench codec -- tucker` runs the Tucker cases.
 
 use brdfpack::codec::{CodecRequest, CodecSpec, Layout, reference, testdata};
 use brdfpack::table::Table;
@@ -31,12 +32,15 @@ fn cases() -> Vec<&'static str> {
         "ggx dct:step=0.1",
         "ggx production",
         "ggx dct:eps=0.001,step=1.133",
+        "ggx tucker:ranks=16x16x32,step=0.3",
+        "ggx tucker:ranks=32x32x64,step=0.3",
     ];
     if gold().is_some() {
         v.extend([
             "gold lossless:level=3",
             "gold production",
             "gold dct:eps=0.001,step=0.3353",
+            "gold tucker:ranks=32x32x64,step=0.3",
         ]);
     } else {
         println!("skipped: gold cases (shared MERL data not found)");

@@ -15,6 +15,7 @@ impl CodecRequest {
             | CodecRequest::Lossless { level, .. }
             | CodecRequest::F16 { level, .. }
             | CodecRequest::Uniform { level, .. }
+            | CodecRequest::Tucker { level, .. }
             | CodecRequest::Dct {
                 coding: DctCoding::Zstd { level },
                 ..
@@ -33,6 +34,7 @@ impl CodecRequest {
             | CodecRequest::Lossless { level, .. }
             | CodecRequest::F16 { level, .. }
             | CodecRequest::Uniform { level, .. }
+            | CodecRequest::Tucker { level, .. }
             | CodecRequest::Dct {
                 coding: DctCoding::Zstd { level },
                 ..
@@ -116,6 +118,23 @@ impl fmt::Display for CodecRequest {
                     }
                 }
             }
+            CodecRequest::Tucker {
+                curve: c,
+                ranks,
+                step,
+                factor_step,
+                colour: k,
+                level,
+            } => {
+                let ranks: Vec<String> = ranks.iter().map(usize::to_string).collect();
+                write!(
+                    f,
+                    "tucker:ranks={},step={step:?},factor={factor_step:?},",
+                    ranks.join("x")
+                )?;
+                curve(f, c)?;
+                write!(f, ",colour={},level={level}", colour(*k))
+            }
         }
     }
 }
@@ -145,6 +164,14 @@ mod tests {
             (
                 "dct:step=0.5,refine=2",
                 "dct:step=0.5,curve=log,eps=0.001,colour=klt,coding=context,deadzone=0.75,refine=2",
+            ),
+            (
+                "tucker:ranks=8x8x16",
+                "tucker:ranks=8x8x16,step=0.05,factor=1.0,curve=log,eps=0.001,colour=klt,level=19",
+            ),
+            (
+                "tucker: ranks = 2x3x4x5 ,step=0.1,factor=2,curve=linear,colour=none,level=3",
+                "tucker:ranks=2x3x4x5,step=0.1,factor=2.0,curve=linear,colour=none,level=3",
             ),
         ] {
             let r = CodecRequest::parse(spec).unwrap();
