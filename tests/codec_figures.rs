@@ -290,7 +290,11 @@ fn figures_curves() {
             let ranks: Vec<String> = frac
                 .iter()
                 .zip(&dims)
-                .map(|(&r, &n)| (r * n / if n == 180 { 180 } else { 90 }).clamp(1, n).to_string())
+                .map(|(&r, &n)| {
+                    (r * n / if n == 180 { 180 } else { 90 })
+                        .clamp(1, n)
+                        .to_string()
+                })
                 .collect();
             let ranks = ranks.join("x");
             for step in [0.1, 0.3, 1.0] {

@@ -42,7 +42,14 @@ pub fn dct_entry(n: usize, k: usize, j: usize) -> f64 {
 }
 
 /// out[o][i][x] = Σ_j mat[i][j] · in[o][j][x] along `axis` (mat is m × dims[axis]).
-pub(crate) fn apply_axis<T>(input: &[T], dims: &[usize], axis: usize, mat: &[T], m: usize, par: bool) -> Vec<T>
+pub(crate) fn apply_axis<T>(
+    input: &[T],
+    dims: &[usize],
+    axis: usize,
+    mat: &[T],
+    m: usize,
+    par: bool,
+) -> Vec<T>
 where
     T: Copy + Default + Send + Sync + std::ops::Mul<Output = T> + std::ops::AddAssign,
 {

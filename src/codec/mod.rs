@@ -960,9 +960,9 @@ impl CodecRequest {
                     step: vec![*step; c],
                     factor_step: *factor_step,
                 };
-                stage.validate(&shape_dims, c).map_err(|e| {
-                    Error::input(format!("codec {self}: grid {shape_dims:?}: {e}"))
-                })?;
+                stage
+                    .validate(&shape_dims, c)
+                    .map_err(|e| Error::input(format!("codec {self}: grid {shape_dims:?}: {e}")))?;
                 CodecSpec::Tucker {
                     domain: Domain::FillInvalid,
                     transform: transform_for(table, *curve, *colour),
@@ -1308,6 +1308,39 @@ mod tests {
                 assert_eq!(coding.deadzone, coefcode::DEFAULT_DEADZONE);
             }
         }
+        let spec = CodecRequest::parse("tucker:ranks=4x4x6,step=0.01")
+            .unwrap()
+            .resolve(&t)
+            .unwrap();
+        let payload = spec.encode(&t).unwrap();
+        for cut in [0, 1, payload.len() / 2, payload.len() - 1] {
+            assert!(
+                spec.decode(&payload[..cut], &layout).is_err(),
+                "tucker cut {cut}"
+            );
+        }
+        let edits: [fn(&mut tucker::TuckerStage, &mut Domain); 6] = [
+            |s, _| s.ranks = vec![4, 4],
+            |s, _| s.ranks = vec![4, 9, 6],
+            |s, _| s.ranks = vec![4, 0, 6],
+            |s, _| s.step = vec![0.01, f64::INFINITY, 0.01],
+            |s, _| s.factor_step = f64::NAN,
+            |_, d| *d = Domain::DropInvalid,
+        ];
+        for (i, edit) in edits.iter().enumerate() {
+            let mut bad = spec.clone();
+            if let CodecSpec::Tucker { tucker, domain, .. } = &mut bad {
+                edit(tucker, domain);
+            }
+            assert!(bad.decode(&payload, &layout).is_err(), "tucker edit {i}");
+            assert!(bad.encode(&t).is_err(), "tucker edit {i}");
+        }
+        // Smaller ranks than the payload was written with: its extents exceed them.
+        let mut small = spec.clone();
+        if let CodecSpec::Tucker { tucker, .. } = &mut small {
+            tucker.ranks = vec![1, 1, 1];
+        }
+        assert!(small.decode(&payload, &layout).is_err());
         let lossless = CodecRequest::parse("lossless")
             .unwrap()
             .resolve(&t)

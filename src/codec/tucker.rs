@@ -74,8 +74,7 @@ impl TuckerStage {
                 )));
             }
         }
-        if self.step.len() != components || self.step.iter().any(|s| !(s.is_finite() && *s > 0.0))
-        {
+        if self.step.len() != components || self.step.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(Error::input(format!(
                 "tucker steps {:?}: need {components} finite positive values",
                 self.step
@@ -834,7 +833,10 @@ mod tests {
         let good = encode(std::slice::from_ref(&x), &dims, &stage).unwrap();
         assert!(deserialize(&good, &dims, &stage).is_ok());
         for cut in [0, 1, 3, good.len() / 2, good.len() - 1] {
-            assert!(deserialize(&good[..cut], &dims, &stage).is_err(), "cut {cut}");
+            assert!(
+                deserialize(&good[..cut], &dims, &stage).is_err(),
+                "cut {cut}"
+            );
         }
         let mut long = good.clone();
         long.push(0);
