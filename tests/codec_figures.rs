@@ -221,7 +221,7 @@ fn figures_tiny_alpha_packs_without_inf() {
         "dct:step=0.01,coding=zstd",
         "dct:step=0.01",
         "tucker:ranks=16x16x32,step=0.01",
-        "tucker:ranks=32x32x64,step=0.1,curve=linear",
+        "tucker:ranks=32x32x64,step=100,curve=linear",
     ] {
         let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
         let file = native::to_bytes(&t, &spec).unwrap();

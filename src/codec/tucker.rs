@@ -132,6 +132,16 @@ fn gram(x: &[f64], dims: &[usize], a: usize) -> Vec<f64> {
         .into_par_iter()
         .map(|i| {
             let mut row = vec![0.0; i + 1];
+            if inner == 1 {
+                // Element-wise over j (vectorizes); still one fixed order per entry.
+                for line in x.chunks_exact(n) {
+                    let xi = line[i];
+                    for (r, xj) in row.iter_mut().zip(line) {
+                        *r += xi * xj;
+                    }
+                }
+                return row;
+            }
             for o in 0..outer {
                 let base = o * n * inner;
                 let xi = &x[base + i * inner..base + (i + 1) * inner];
@@ -216,7 +226,7 @@ fn pseudo_inverse(u: &[f64], n: usize, r: usize) -> Option<Vec<f64>> {
             let a: f64 = col(i).iter().zip(col(j)).map(|(p, q)| p * q).sum();
             let s = a - (0..j).map(|k| l[i * r + k] * l[j * r + k]).sum::<f64>();
             if i == j {
-                if !(s > 0.0) {
+                if s.is_nan() || s <= 0.0 {
                     return None;
                 }
                 l[i * r + i] = s.sqrt();
