@@ -141,6 +141,10 @@ fn with_header(file: &[u8], edit: impl Fn(&str) -> String) -> Vec<u8> {
         out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
         out.extend_from_slice(&payload);
         pos += 16 + len;
+        // `compress -o -` prints its report after the file.
+        if tag == b"END " {
+            break;
+        }
     }
     out
 }

@@ -214,6 +214,8 @@ fn figures_tiny_alpha_packs_without_inf() {
         return;
     }
     let t = testdata::ggx_merl(0.0005);
+    let set = SampleSet::uniform(65_536, 1);
+    let ev = brdfpack::codec::search::Evaluator::new(&t, &set).unwrap();
     for s in [
         "lossless",
         "f16",
@@ -231,7 +233,13 @@ fn figures_tiny_alpha_packs_without_inf() {
             back.data().iter().all(|v| v.is_finite() && *v >= 0.0),
             "{s}"
         );
-        println!("ALPHA 5e-4 {s}: {} B, max decoded {max:.4e}", file.len());
+        let m = ev.measure(&spec).unwrap().metrics;
+        println!(
+            "ALPHA 5e-4 {s}: {} B, max decoded {max:.4e}, log_rmse {:.4e} p99_rel_core {:.4e}",
+            file.len(),
+            m.log_rmse,
+            m.p99_rel_core
+        );
     }
 }
 
