@@ -16,6 +16,7 @@
 
 pub mod coefcode;
 pub mod dct;
+mod eigen;
 pub mod domain;
 pub mod entropy;
 mod idct;

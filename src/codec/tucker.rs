@@ -4,11 +4,11 @@
 //! vectors of the mode-a unfolding and G the r₁ × r₂ × r₃ core.
 //!
 //! Encoder (f64):
-//! 1. U_a from the eigenvectors of the N_a × N_a Gram matrix X_(a) X_(a)ᵀ (faer's
-//!    self-adjoint eigensolver, sequential: faer is built without rayon). The Gram matrix of a
-//!    MERL grid is at most 180 × 180 and costs one pass over the table per axis; an SVD of the
-//!    90 × 16,200 or 180 × 8,100 unfolding would copy and factor the whole table per axis to
-//!    get the same vectors. Squaring the spectrum only loses the singular values below
+//! 1. U_a from the eigenvectors of the N_a × N_a Gram matrix X_(a) X_(a)ᵀ (the hand-written
+//!    cyclic Jacobi of [`super::eigen`], scalar and sequential, so the same bits on every CPU
+//!    and thread count). The Gram matrix of a MERL grid is at most 180 × 180 and costs one
+//!    pass over the table per axis; an SVD of the 90 × 16,200 or 180 × 8,100 unfolding would
+//!    copy and factor the whole table per axis to get the same vectors. Squaring the spectrum only loses the singular values below
 //!    1e-8 × the largest, which a truncation drops anyway. Signs: the largest-|·| entry of
 //!    every column is made positive (first such entry on ties), so the vectors are unique.
 //! 2. σ_aj = the norm of core slice j along axis a (the singular values of X_(a)); column j of
@@ -17,9 +17,9 @@
 //!    code. The step is clamped to [2⁻²³, 2⁻⁸] × the column's largest |entry|, which keeps
 //!    codes below 2²⁴ and the quantized columns independent.
 //! 3. The core is the least-squares core for the *quantized* factors Û_a,
-//!    G = X ×ₐ (Û_aᵀÛ_a)⁻¹Û_aᵀ (plain f64, no faer: the bytes depend on faer only through
-//!    the factor codes), quantized with step s; only the box of leading core indices holding
-//!    every nonzero code is kept, and the factor columns outside it are dropped.
+//!    G = X ×ₐ (Û_aᵀÛ_a)⁻¹Û_aᵀ (plain f64 with a fixed summation order), quantized with
+//!    step s; only the box of leading core indices holding every nonzero code is kept, and the
+//!    factor columns outside it are dropped.
 //!
 //! Stream (then zstd): per component the box extents (varints); every factor column's step
 //! (f32 LE); every factor column's codes, zigzag varints of the differences down the column
@@ -32,6 +32,7 @@
 #![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
 
 use super::dct::{self, Coefficients};
+use super::eigen::SymmetricEigen;
 use super::simd::{Finisher, dispatch, finish};
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -170,31 +171,15 @@ fn gram(x: &[f64], dims: &[usize], a: usize) -> Vec<f64> {
 /// The `r` eigenvectors of the symmetric `g` (n × n) with the largest eigenvalues, largest
 /// first, column-major (n values per column), each with its largest-|·| entry positive.
 fn leading_eigenvectors(g: &[f64], n: usize, r: usize) -> Result<Vec<f64>> {
-    let m = faer::Mat::<f64>::from_fn(n, n, |i, j| g[i * n + j]);
-    let evd = m
-        .self_adjoint_eigen(faer::Side::Lower)
-        .map_err(|e| Error::Failure(format!("tucker: eigendecomposition failed: {e:?}")))?;
-    let u = evd.U();
+    let evd = SymmetricEigen::new(g, n).ok_or_else(|| {
+        Error::Failure(format!(
+            "tucker: eigendecomposition of a {n} × {n} Gram matrix failed \
+             (non-finite entries from a non-finite transformed table?)"
+        ))
+    })?;
     let mut out = Vec::with_capacity(n * r);
-    // faer sorts eigenvalues in nondecreasing order.
     for j in 0..r {
-        let col = n - 1 - j;
-        let mut v: Vec<f64> = (0..n).map(|i| u[(i, col)]).collect();
-        let mut big = 0;
-        for (i, x) in v.iter().enumerate() {
-            if x.abs() > v[big].abs() {
-                big = i;
-            }
-        }
-        if v[big] < 0.0 {
-            v.iter_mut().for_each(|x| *x = -*x);
-        }
-        out.extend(v);
-    }
-    if out.iter().any(|x| !x.is_finite()) {
-        return Err(Error::Failure(
-            "tucker: eigenvectors are not finite (a non-finite transformed table?)".into(),
-        ));
+        out.extend_from_slice(evd.vector(j));
     }
     Ok(out)
 }
