@@ -109,7 +109,7 @@ fn off_diagonal2(m: &[f64], n: usize) -> f64 {
 
 /// One Jacobi rotation A ← JᵀAJ, V ← VJ zeroing a_pq (p < q), with J = [[c, s], [−s, c]] in
 /// rows/columns p, q.
-// Golub & Van Loan, Matrix Computations (4th ed.), §8.5 "Jacobi methods", Alg. 8.5.1 (sym.schur2) with b_pp = a_pp − t·a_pq, b_qq = a_qq + t·a_pq.
+// Golub & Van Loan, Matrix Computations (4th ed.), §8.5 "Jacobi methods", sym.schur2.
 fn rotate(m: &mut [f64], v: &mut [f64], n: usize, p: usize, q: usize) {
     let apq = m[p * n + q];
     if apq == 0.0 {
@@ -175,11 +175,20 @@ mod tests {
         let mut orth: f64 = 0.0;
         for i in 0..n {
             for j in 0..n {
-                let d: f64 = e.vector(i).iter().zip(e.vector(j)).map(|(x, y)| x * y).sum();
+                let d: f64 = e
+                    .vector(i)
+                    .iter()
+                    .zip(e.vector(j))
+                    .map(|(x, y)| x * y)
+                    .sum();
                 orth = orth.max((d - if i == j { 1.0 } else { 0.0 }).abs());
             }
         }
-        let rel = if norm > 0.0 { (res / norm).sqrt() } else { res.sqrt() };
+        let rel = if norm > 0.0 {
+            (res / norm).sqrt()
+        } else {
+            res.sqrt()
+        };
         (rel, orth)
     }
 

@@ -16,8 +16,8 @@
 
 pub mod coefcode;
 pub mod dct;
-mod eigen;
 pub mod domain;
+mod eigen;
 pub mod entropy;
 mod idct;
 pub mod predict;
