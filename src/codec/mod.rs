@@ -17,7 +17,7 @@
 pub mod coefcode;
 pub mod dct;
 pub mod domain;
-mod eigen;
+pub mod eigen;
 pub mod entropy;
 mod idct;
 pub mod predict;
