@@ -7,7 +7,9 @@
 //! search's ε and step written out so the bench does not rerun the search). `decode` is the
 //! decoder files are read with (a fresh output vector per call); `decode_into` the same into
 //! a reused buffer; `decode_reference` the previous decoder (`codec::reference`), measured in
-//! the same run for the before/after ratio.
+//! the same run for the before/after ratio. Tucker cases
+//! (`tucker:`) compare with the f64 reference expansion; `cargo bench --bench codec -- tucker`
+//! runs only them.
 
 use brdfpack::codec::{CodecRequest, CodecSpec, Layout, reference, testdata};
 use brdfpack::table::Table;
@@ -48,6 +50,8 @@ fn cases() -> Vec<&'static str> {
         // The production step with the cosine weight: the cost of the per-cell 1/w (weights
         // computed from the grid at every decode).
         "ggx dct:eps=0.001,step=1.31,refine=4,weight=cosine",
+        "ggx tucker:ranks=16x16x32,step=0.3",
+        "ggx tucker:ranks=32x32x64,step=0.3",
     ];
     if gold().is_some() {
         v.extend([
@@ -55,6 +59,7 @@ fn cases() -> Vec<&'static str> {
             "gold preview",
             "gold production",
             "gold production-zstd",
+            "gold tucker:ranks=32x32x64,step=0.3",
         ]);
     } else {
         println!("skipped: gold cases (shared MERL data not found)");

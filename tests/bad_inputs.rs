@@ -79,10 +79,74 @@ fn make_files(dir: &Path) {
         nan.extend_from_slice(&v.to_le_bytes());
     }
     w("nan.binary", &nan);
+    // Tucker files whose header was edited (checksums recomputed): a rank beyond the axis
+    // resolution, a zero rank, a factor step out of range, a NaN core step.
+    let tucker = Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "compress",
+            &dir.join("ok.bpk").display().to_string(),
+            "--codec",
+            "tucker:ranks=2x2x2,step=0.01",
+            "-o",
+            "-",
+        ])
+        .output()
+        .unwrap()
+        .stdout;
+    assert!(tucker.starts_with(b"\x89BPK"));
+    let edit = |f: &dyn Fn(&mut serde_json::Value)| {
+        with_header(&tucker, |h| {
+            let mut v: serde_json::Value = serde_json::from_str(h).unwrap();
+            f(&mut v["codec"]["tucker"]);
+            v.to_string()
+        })
+    };
+    w(
+        "tucker-rank.bpk",
+        &edit(&|t| t["ranks"] = serde_json::json!([99, 2, 2])),
+    );
+    w(
+        "tucker-zero.bpk",
+        &edit(&|t| t["ranks"] = serde_json::json!([2, 0, 2])),
+    );
+    w(
+        "tucker-factor.bpk",
+        &edit(&|t| t["factor_step"] = serde_json::json!(1e9)),
+    );
+    w(
+        "tucker-step.bpk",
+        &edit(&|t| t["step"] = serde_json::json!([0.01, -1.0, 0.01])),
+    );
     w("truncated.bsdf", b"tensor_file\0\x01\x00\x05\x00");
     w("not-a-table.txt", b"hello");
     w("model.json", br#"{"model": "ggx", "alpha": "rough"}"#);
     w("broken.json", b"{\"model\": ");
+}
+
+/// `file` (a native table) with its `HEAD` JSON replaced by `edit(HEAD)`, every length and
+/// checksum recomputed, so that only the header's content is wrong.
+fn with_header(file: &[u8], edit: impl Fn(&str) -> String) -> Vec<u8> {
+    let mut out = file[..20].to_vec();
+    let mut pos = 20;
+    while pos < file.len() {
+        let tag = &file[pos..pos + 4];
+        let len = u64::from_le_bytes(file[pos + 4..pos + 12].try_into().unwrap()) as usize;
+        let mut payload = file[pos + 16..pos + 16 + len].to_vec();
+        if tag == b"HEAD" {
+            payload = edit(std::str::from_utf8(&payload).unwrap()).into_bytes();
+        }
+        out.extend_from_slice(tag);
+        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+        out.extend_from_slice(&payload);
+        pos += 16 + len;
+        // `compress -o -` prints its report after the file.
+        if tag == b"END " {
+            break;
+        }
+    }
+    out
 }
 
 /// (arguments, a phrase the message must contain). `OUT` is replaced by the output path and
@@ -168,6 +232,24 @@ const CASES: &[(&str, &str)] = &[
         "compress DIR/ok.bpk -o OUT --codec nosuchcodec",
         "nosuchcodec",
     ),
+    (
+        "compress DIR/ok.bpk -o OUT --codec tucker:ranks=2x2",
+        "tucker ranks [2, 2]: expected 3",
+    ),
+    (
+        "compress DIR/ok.bpk -o OUT --codec tucker:ranks=2x2x999",
+        "tucker rank 999 on axis 2",
+    ),
+    (
+        "convert DIR/tucker-rank.bpk -o OUT",
+        "tucker rank 99 on axis 0",
+    ),
+    (
+        "convert DIR/tucker-zero.bpk -o OUT",
+        "tucker rank 0 on axis 1",
+    ),
+    ("convert DIR/tucker-factor.bpk -o OUT", "factor_step"),
+    ("convert DIR/tucker-step.bpk -o OUT", "tucker steps"),
     (
         "compress DIR/ok.bpk -o OUT --max-error foo=1",
         "unknown metric",

@@ -170,3 +170,37 @@ fn pack_with_an_unmeetable_budget_exits_1_and_writes_nothing() {
         );
     assert!(!out.exists());
 }
+
+/// The Tucker encoder's sums run on rayon threads: the file must not depend on how many.
+#[test]
+fn tucker_files_are_the_same_bytes_for_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = small_table_file(dir.path());
+    let run = |threads: &str| {
+        let out = dir.path().join(format!("tucker-{threads}.bpk"));
+        Command::cargo_bin("brdfpack")
+            .unwrap()
+            .env("RAYON_NUM_THREADS", threads)
+            .args([
+                "compress",
+                input.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ])
+            .args([
+                "--codec",
+                "tucker:ranks=8x8x12,step=0.02",
+                "--samples",
+                "1024",
+            ])
+            .assert()
+            .success();
+        std::fs::read(&out).unwrap()
+    };
+    let one = run("1");
+    assert_eq!(one, run("2"));
+    let t = native::from_bytes(&one, Path::new("tucker.bpk")).unwrap();
+    assert!(t.data().iter().all(|v| v.is_finite() && *v >= 0.0));
+    let header = native::read_header(&one, Path::new("tucker.bpk")).unwrap();
+    assert!(matches!(header.codec, CodecSpec::Tucker { .. }));
+}

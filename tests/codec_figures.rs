@@ -214,12 +214,16 @@ fn figures_tiny_alpha_packs_without_inf() {
         return;
     }
     let t = testdata::ggx_merl(0.0005);
+    let set = SampleSet::uniform(65_536, 1);
+    let ev = brdfpack::codec::search::Evaluator::new(&t, &set).unwrap();
     for s in [
         "lossless",
         "f16",
         "f16:curve=linear",
         "dct:step=0.01,coding=zstd",
         "dct:step=0.01",
+        "tucker:ranks=16x16x32,step=0.01",
+        "tucker:ranks=32x32x64,step=100,curve=linear",
     ] {
         let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
         let file = native::to_bytes(&t, &spec).unwrap();
@@ -229,7 +233,13 @@ fn figures_tiny_alpha_packs_without_inf() {
             back.data().iter().all(|v| v.is_finite() && *v >= 0.0),
             "{s}"
         );
-        println!("ALPHA 5e-4 {s}: {} B, max decoded {max:.4e}", file.len());
+        let m = ev.measure(&spec).unwrap().metrics;
+        println!(
+            "ALPHA 5e-4 {s}: {} B, max decoded {max:.4e}, log_rmse {:.4e} p99_rel_core {:.4e}",
+            file.len(),
+            m.log_rmse,
+            m.p99_rel_core
+        );
     }
 }
 
@@ -275,6 +285,40 @@ fn figures_curves() {
                     m.payload.len(),
                     m.metrics.log_rmse,
                     m.metrics.p99_rel_core
+                );
+            }
+        }
+        // Truncated Tucker (same transform and fill) beside the DCT: a rank ladder for
+        // 3-axis grids (the MERL ranks scaled to the grid), a few core steps each.
+        let dims = t.grid().shape();
+        if dims.len() != 3 {
+            continue;
+        }
+        for frac in [[8, 8, 16], [16, 16, 32], [24, 24, 48], [32, 32, 64]] {
+            let ranks: Vec<String> = frac
+                .iter()
+                .zip(&dims)
+                .map(|(&r, &n)| {
+                    (r * n / if n == 180 { 180 } else { 90 })
+                        .clamp(1, n)
+                        .to_string()
+                })
+                .collect();
+            let ranks = ranks.join("x");
+            for step in [0.1, 0.3, 1.0] {
+                let req = format!("tucker:ranks={ranks},step={step}");
+                let spec = CodecRequest::parse(&req).unwrap().resolve(t).unwrap();
+                let t0 = Instant::now();
+                let m = ev.measure(&spec).unwrap();
+                let enc_s = t0.elapsed().as_secs_f64();
+                let dec = decode_seconds(&spec, &m.payload, t, 3);
+                println!(
+                    "CURVE {name} {req}: payload {} B log_rmse {:.4e} p99_rel_core {:.4e} \
+                     (encode+measure {enc_s:.1} s, decode {:.1} ms)",
+                    m.payload.len(),
+                    m.metrics.log_rmse,
+                    m.metrics.p99_rel_core,
+                    dec * 1e3
                 );
             }
         }

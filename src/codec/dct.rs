@@ -42,7 +42,14 @@ pub fn dct_entry(n: usize, k: usize, j: usize) -> f64 {
 }
 
 /// out[o][i][x] = Σ_j mat[i][j] · in[o][j][x] along `axis` (mat is m × dims[axis]).
-fn apply_axis<T>(input: &[T], dims: &[usize], axis: usize, mat: &[T], m: usize, par: bool) -> Vec<T>
+pub(crate) fn apply_axis<T>(
+    input: &[T],
+    dims: &[usize],
+    axis: usize,
+    mat: &[T],
+    m: usize,
+    par: bool,
+) -> Vec<T>
 where
     T: Copy + Default + Send + Sync + std::ops::Mul<Output = T> + std::ops::AddAssign,
 {
@@ -190,7 +197,7 @@ pub fn quantize(coef: &[f64], dims: &[usize], step: f64) -> Coefficients {
     Coefficients { extent, codes }
 }
 
-fn put_varint(out: &mut Vec<u8>, mut v: u64) {
+pub(crate) fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     while v >= 0x80 {
         out.push((v as u8) | 0x80);
         v >>= 7;

@@ -92,7 +92,7 @@ pub(crate) fn axis_order(extent: &[usize], dims: &[usize]) -> Vec<usize> {
     cheapest_order(extent, dims, None).1
 }
 
-fn next_permutation(p: &mut [usize]) -> bool {
+pub(crate) fn next_permutation(p: &mut [usize]) -> bool {
     let n = p.len();
     if n < 2 {
         return false;

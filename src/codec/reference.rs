@@ -91,6 +91,26 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                 .collect();
             Ok(inverse_planes(transform, &planes, layout, c))
         }
+        CodecSpec::Tucker {
+            transform,
+            tucker: stage,
+            entropy,
+            ..
+        } => {
+            // The f64 reference of the f32 expansion, rounded to f32 once at the end.
+            let comps = super::tucker_components(payload, &dims, stage, entropy)?;
+            let planes: Vec<Vec<f32>> = comps
+                .iter()
+                .zip(&stage.step)
+                .map(|(q, &s)| {
+                    super::tucker::inverse_f64(q, &dims, s)
+                        .iter()
+                        .map(|&v| v as f32)
+                        .collect()
+                })
+                .collect();
+            Ok(inverse_planes(transform, &planes, layout, c))
+        }
     }
 }
 

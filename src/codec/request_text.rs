@@ -18,6 +18,7 @@ impl CodecRequest {
             | CodecRequest::Lossless { level, .. }
             | CodecRequest::F16 { level, .. }
             | CodecRequest::Uniform { level, .. }
+            | CodecRequest::Tucker { level, .. }
             | CodecRequest::Dct {
                 coding: DctCoding::Zstd { level },
                 ..
@@ -36,6 +37,7 @@ impl CodecRequest {
             | CodecRequest::Lossless { level, .. }
             | CodecRequest::F16 { level, .. }
             | CodecRequest::Uniform { level, .. }
+            | CodecRequest::Tucker { level, .. }
             | CodecRequest::Dct {
                 coding: DctCoding::Zstd { level },
                 ..
@@ -136,6 +138,26 @@ impl fmt::Display for CodecRequest {
                     }
                 }
             }
+            CodecRequest::Tucker {
+                curve: c,
+                weight: w,
+                ranks,
+                step,
+                factor_step,
+                colour: k,
+                level,
+            } => {
+                let ranks: Vec<String> = ranks.iter().map(usize::to_string).collect();
+                write!(
+                    f,
+                    "tucker:ranks={},step={step:?},factor={factor_step:?},",
+                    ranks.join("x")
+                )?;
+                curve(f, c)?;
+                write!(f, ",colour={}", colour(*k))?;
+                weight(f, w)?;
+                write!(f, ",level={level}")
+            }
         }
     }
 }
@@ -181,6 +203,14 @@ mod tests {
             (
                 "uniform:bits=9,weight=cosine,colour=none",
                 "uniform:bits=9,curve=log,eps=0.001,colour=none,weight=cosine,level=19",
+            ),
+            (
+                "tucker:ranks=8x8x16",
+                "tucker:ranks=8x8x16,step=0.05,factor=1.0,curve=log,eps=0.001,colour=klt,level=19",
+            ),
+            (
+                "tucker: ranks = 2x3x4x5 ,step=0.1,factor=2,curve=linear,colour=none,level=3",
+                "tucker:ranks=2x3x4x5,step=0.1,factor=2.0,curve=linear,colour=none,level=3",
             ),
         ] {
             let r = CodecRequest::parse(spec).unwrap();

@@ -7,9 +7,11 @@
 //! together); the reported error is that measurement. Candidates: the DCT chain with the log
 //! curve (ε = 1e-3, 3e-3 and 1e-2 of each channel's mean) and KLT colour decorrelation, with the
 //! quantization step found by bisection in log(step) (error grows with step); the lossless
-//! chain when no lossy candidate meets the budget. The cosine weight (`weight=cosine`) is not a
-//! candidate: on GGX α = 0.2 and gold-metallic-paint it never made a smaller file at the same
-//! log_rmse / p99_rel_core (docs/compression.md, `figures_weight`).
+//! chain when no lossy candidate meets the budget. Not candidates: the cosine weight
+//! (`weight=cosine`), which on GGX α = 0.2 and gold-metallic-paint never made a smaller file at
+//! the same log_rmse / p99_rel_core (docs/compression.md, `figures_weight`); and the Tucker
+//! chain, 2–4× larger than the context-coded DCT at the same error on the MERL-grid tables
+//! measured (docs/compression.md, "Truncated Tucker beside the DCT").
 
 use super::coefcode::{self, ContextCoding, DEFAULT_DEADZONE};
 use super::domain::Domain;
