@@ -514,6 +514,30 @@ fn strided_impl(src: &[f32], dst: &mut [f32], outer: usize, inner: usize, b: &Ha
     }
 }
 
+/// acc[p][l] += w(k).p × s[k·inner + x0 + l] over the rows k (two outputs per loaded tile:
+/// the sums are latency-bound otherwise), each sum in row order. Shared by the DCT and Tucker
+/// expansions.
+#[inline(always)]
+pub(crate) fn accumulate_two<const T: usize>(
+    acc: &mut [[f32; T]; 2],
+    s: &[f32],
+    inner: usize,
+    x0: usize,
+    rows: &[usize],
+    w: impl Fn(usize) -> (f32, f32),
+) {
+    for &k in rows {
+        let (w0, w1) = w(k);
+        let v: &[f32; T] = s[k * inner + x0..k * inner + x0 + T]
+            .try_into()
+            .expect("tile inside the line");
+        for l in 0..T {
+            acc[0][l] += w0 * v[l];
+            acc[1][l] += w1 * v[l];
+        }
+    }
+}
+
 /// Lines x0..x0+T of one outer block: d[j·dstride + dx + l] for every output j.
 #[allow(clippy::too_many_arguments)] // The kernel's whole state; a struct would hide the loads.
 #[inline(always)]
@@ -534,28 +558,9 @@ fn strided_tile<const T: usize>(
     while j + 1 < b.h {
         let mut te = [[0f32; T]; 2];
         let mut to = [[0f32; T]; 2];
-        for &k in even {
-            let w0 = b.rows[k * b.hp + j];
-            let w1 = b.rows[k * b.hp + j + 1];
-            let v: &[f32; T] = s[k * inner + x0..k * inner + x0 + T]
-                .try_into()
-                .expect("tile inside the line");
-            for l in 0..T {
-                te[0][l] += w0 * v[l];
-                te[1][l] += w1 * v[l];
-            }
-        }
-        for &k in odd {
-            let w0 = b.rows[k * b.hp + j];
-            let w1 = b.rows[k * b.hp + j + 1];
-            let v: &[f32; T] = s[k * inner + x0..k * inner + x0 + T]
-                .try_into()
-                .expect("tile inside the line");
-            for l in 0..T {
-                to[0][l] += w0 * v[l];
-                to[1][l] += w1 * v[l];
-            }
-        }
+        let w = |k: usize| (b.rows[k * b.hp + j], b.rows[k * b.hp + j + 1]);
+        accumulate_two::<T>(&mut te, s, inner, x0, even, w);
+        accumulate_two::<T>(&mut to, s, inner, x0, odd, w);
         for p in 0..2 {
             let jj = j + p;
             let lo = jj * dstride + dx;

@@ -33,6 +33,7 @@
 
 use super::dct::{self, Coefficients};
 use super::eigen::SymmetricEigen;
+use super::idct::accumulate_two;
 use super::simd::{Finisher, dispatch, finish};
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -664,17 +665,9 @@ fn strided_tile<const T: usize>(
     while t < b.n {
         let two = t + 1 < b.n;
         let mut acc = [[0f32; T]; 2];
-        for &k in rows {
-            let w0 = b.rows[k * b.np + t];
-            let w1 = b.rows[k * b.np + t + 1];
-            let v: &[f32; T] = s[k * inner + x0..k * inner + x0 + T]
-                .try_into()
-                .expect("tile inside the line");
-            for l in 0..T {
-                acc[0][l] += w0 * v[l];
-                acc[1][l] += w1 * v[l];
-            }
-        }
+        accumulate_two::<T>(&mut acc, s, inner, x0, rows, |k| {
+            (b.rows[k * b.np + t], b.rows[k * b.np + t + 1])
+        });
         d[t * inner + x0..t * inner + x0 + T].copy_from_slice(&acc[0]);
         if two {
             d[(t + 1) * inner + x0..(t + 1) * inner + x0 + T].copy_from_slice(&acc[1]);
