@@ -113,6 +113,31 @@ pub(crate) fn next_permutation(p: &mut [usize]) -> bool {
     true
 }
 
+/// A separable expansion: `cur` (shape `cur_dims`) taken to full resolution `dims[a]` along
+/// each axis of `order` in turn; `pass(a, src, dst, outer, inner)` expands one axis (`dst` is
+/// `outer × dims[a] × inner`, every value written by the pass). Shared by the DCT and Tucker
+/// decoders; the two scratch buffers are swapped, never zeroed (zeroing cost more than a pass
+/// on small boxes).
+pub(crate) fn expand_axes(
+    mut cur: Vec<f32>,
+    mut cur_dims: Vec<usize>,
+    dims: &[usize],
+    order: &[usize],
+    mut pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
+) -> (Vec<f32>, Vec<usize>) {
+    let mut next = Vec::new();
+    for &a in order {
+        let n = dims[a];
+        let outer: usize = cur_dims[..a].iter().product();
+        let inner: usize = cur_dims[a + 1..].iter().product();
+        next.resize(outer * n * inner, 0.0);
+        pass(a, &cur, &mut next, outer, inner);
+        std::mem::swap(&mut cur, &mut next);
+        cur_dims[a] = n;
+    }
+    (cur, cur_dims)
+}
+
 /// The dequantized box expanded along the axes of `order` (in that order): the array and its
 /// shape (expanded axes at full resolution, the others at the box extent).
 fn expand_along(
@@ -121,27 +146,21 @@ fn expand_along(
     step: f64,
     order: &[usize],
 ) -> (Vec<f32>, Vec<usize>) {
-    let mut cur: Vec<f32> = c.codes.iter().map(|&q| (q as f64 * step) as f32).collect();
-    let mut next = Vec::new();
-    let mut cur_dims = c.extent.clone();
-    for &a in order {
-        let n = dims[a];
-        let e = cur_dims[a];
-        let outer: usize = cur_dims[..a].iter().product();
-        let inner: usize = cur_dims[a + 1..].iter().product();
-        let basis = HalfBasis::new(n, e);
-        // No zeroing: both kernels write every output (stale values from the last pass are
-        // overwritten), and zeroing cost more than a pass on small boxes.
-        next.resize(outer * n * inner, 0.0);
-        if inner == 1 {
-            expand_contiguous(&cur, &mut next, outer, &basis);
-        } else {
-            expand_strided(&cur, &mut next, outer, inner, &basis);
-        }
-        std::mem::swap(&mut cur, &mut next);
-        cur_dims[a] = n;
-    }
-    (cur, cur_dims)
+    let cur: Vec<f32> = c.codes.iter().map(|&q| (q as f64 * step) as f32).collect();
+    expand_axes(
+        cur,
+        c.extent.clone(),
+        dims,
+        order,
+        |a, src, dst, outer, inner| {
+            let basis = HalfBasis::new(dims[a], c.extent[a]);
+            if inner == 1 {
+                expand_contiguous(src, dst, outer, &basis);
+            } else {
+                expand_strided(src, dst, outer, inner, &basis);
+            }
+        },
+    )
 }
 
 /// Reconstructs one component plane (every cell) from its quantized box, in f32.

@@ -33,7 +33,7 @@
 
 use super::dct::{self, Coefficients};
 use super::eigen::SymmetricEigen;
-use super::idct::accumulate_two;
+use super::idct::{accumulate_two, expand_axes};
 use super::simd::{Finisher, dispatch, finish};
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -549,29 +549,22 @@ pub fn inverse(c: &Component, dims: &[usize], step: f64) -> Vec<f32> {
     if c.is_empty() {
         return vec![0.0; cells];
     }
-    let mut cur: Vec<f32> = c
+    let cur: Vec<f32> = c
         .core
         .codes
         .iter()
         .map(|&q| (q as f64 * step) as f32)
         .collect();
-    let mut cur_dims = c.core.extent.clone();
-    let mut next = Vec::new();
-    for a in axis_order(&c.core.extent, dims) {
-        let n = dims[a];
-        let b = Basis::new(&c.factors[a], n);
-        let (outer, inner) = strides_of(&cur_dims, a);
-        next.clear();
-        next.resize(outer * n * inner, 0.0);
+    let order = axis_order(&c.core.extent, dims);
+    let expand = |a: usize, src: &[f32], dst: &mut [f32], outer: usize, inner: usize| {
+        let b = Basis::new(&c.factors[a], dims[a]);
         if inner == 1 {
-            expand_contiguous(&cur, &mut next, outer, &b);
+            expand_contiguous(src, dst, outer, &b);
         } else {
-            expand_strided(&cur, &mut next, outer, inner, &b);
+            expand_strided(src, dst, outer, inner, &b);
         }
-        std::mem::swap(&mut cur, &mut next);
-        cur_dims[a] = n;
-    }
-    cur
+    };
+    expand_axes(cur, c.core.extent.clone(), dims, &order, expand).0
 }
 
 /// Decodes every component and finishes each cell into `out` (cells × components values).
