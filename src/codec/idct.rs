@@ -457,7 +457,22 @@ fn contiguous_line(
     for t0 in (0..hp).step_by(TILE_N) {
         let mut te = [0f32; TILE_N];
         let mut to = [0f32; TILE_N];
-        for &(k, w) in even.iter() {
+        // Even and odd rows side by side: four independent sums instead of two (the adds are
+        // latency-bound), each still in row order, so the same bits.
+        let both = even.len().min(odd.len());
+        for (&(ke, we), &(ko, wo)) in even[..both].iter().zip(&odd[..both]) {
+            let re: &[f32; TILE_N] = b.rows[ke * hp + t0..ke * hp + t0 + TILE_N]
+                .try_into()
+                .expect("tile inside the padded row");
+            let ro: &[f32; TILE_N] = b.rows[ko * hp + t0..ko * hp + t0 + TILE_N]
+                .try_into()
+                .expect("tile inside the padded row");
+            for l in 0..TILE_N {
+                te[l] += we * re[l];
+                to[l] += wo * ro[l];
+            }
+        }
+        for &(k, w) in even[both..].iter() {
             let row: &[f32; TILE_N] = b.rows[k * hp + t0..k * hp + t0 + TILE_N]
                 .try_into()
                 .expect("tile inside the padded row");
@@ -465,7 +480,7 @@ fn contiguous_line(
                 te[l] += w * row[l];
             }
         }
-        for &(k, w) in odd.iter() {
+        for &(k, w) in odd[both..].iter() {
             let row: &[f32; TILE_N] = b.rows[k * hp + t0..k * hp + t0 + TILE_N]
                 .try_into()
                 .expect("tile inside the padded row");
@@ -489,9 +504,9 @@ fn contiguous_line(
         let hi: &mut [f32; 8] = (&mut d[n - j - 8..n - j])
             .try_into()
             .expect("8 outputs inside the line");
-        for l in 0..8 {
-            hi[7 - l] = e[l] - o[l];
-        }
+        let mut diff: [f32; 8] = std::array::from_fn(|l| e[l] - o[l]);
+        diff.reverse();
+        *hi = diff;
         j += 8;
     }
     for j in j..m {

@@ -53,17 +53,31 @@ pub(crate) use dispatch;
 pub const EXP_MIN: f32 = -87.0;
 pub const EXP_MAX: f32 = 88.0;
 
+/// 1.5·2^23: adding it rounds to an integer (to nearest even) held in the low mantissa bits.
+const EXP_MAGIC: f32 = 12_582_912.0;
+/// ln2 split so that n·LN2_HI is exact for |n| ≤ 128 (LN2_HI has 9 significant bits).
+const EXP_LN2_HI: f32 = 0.693_359_4;
+const EXP_LN2_LO: f32 = -2.121_944_4e-4;
+/// The Cephes `expf` polynomial, highest degree first (Cephes 5.0000001201e-1 rounds to 0.5
+/// in f32).
+const EXP_POLY: [f32; 6] = [
+    1.987_569_1e-4,
+    1.398_199_9e-3,
+    8.333_452e-3,
+    4.166_579_6e-2,
+    1.666_666_5e-1,
+    0.5,
+];
+
 /// e^x in f32, within 1 ulp of the exact value on [EXP_MIN, EXP_MAX] (tested), subnormal
 /// below it and 0 below about −109 (NaN reads as EXP_MIN); x above EXP_MAX is clamped. Cody–Waite reduction x = n ln2 + r, |r| ≤ ln2/2, and
 /// the degree-6 minimax polynomial of Cephes `expf` (Moshier 1992), without FMA.
 #[inline(always)]
 pub fn exp_f32(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
-    // 1.5·2^23: adding it rounds to an integer (to nearest even) held in the low mantissa bits.
-    const MAGIC: f32 = 12_582_912.0;
-    // ln2 split so that n·LN2_HI is exact for |n| ≤ 128 (LN2_HI has 9 significant bits).
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
+    const MAGIC: f32 = EXP_MAGIC;
+    const LN2_HI: f32 = EXP_LN2_HI;
+    const LN2_LO: f32 = EXP_LN2_LO;
     // Below EXP_MIN the result is an f32 subnormal (down to e^−103.3): e^x = e^(x + 32 ln2)·2^−32,
     // one rounding. Flushing to e^−87 instead decoded a 1e−41 sample of a dark log-curve table
     // 1e3× too large (tests/hard_cases.rs).
@@ -74,23 +88,55 @@ pub fn exp_f32(x: f32) -> f32 {
         x
     };
     let scale = if small { 2.328_306_4e-10 } else { 1.0 }; // 2^−32
-    // Not `clamp`: it would keep NaN, and NaN must read as EXP_MIN.
-    #[allow(clippy::manual_clamp)]
-    let x = x.max(EXP_MIN).min(EXP_MAX);
+    // Written as the selects that `vmaxps`/`vminps` perform (the second operand when the
+    // comparison fails, so NaN reads as EXP_MIN), so the AVX2 finisher gives the same bits.
+    let x = if x > EXP_MIN { x } else { EXP_MIN };
+    let x = if x < EXP_MAX { x } else { EXP_MAX };
     let t = x * LOG2E + MAGIC;
     let n = t - MAGIC;
     let r = x - n * LN2_HI;
     let r = r - n * LN2_LO;
-    let mut p = 1.987_569_1e-4f32;
-    p = p * r + 1.398_199_9e-3;
-    p = p * r + 8.333_452e-3;
-    p = p * r + 4.166_579_6e-2;
-    p = p * r + 1.666_666_5e-1;
-    p = p * r + 0.5; // Cephes 5.0000001201e-1 rounds to 0.5 in f32.
+    let mut p = EXP_POLY[0];
+    for &k in &EXP_POLY[1..] {
+        p = p * r + k;
+    }
     let y = p * (r * r) + r + 1.0;
     // 2^n from the integer in t's mantissa: n ∈ [−126, 127] here, a normal exponent.
     let e = (t.to_bits() as i32 - MAGIC.to_bits() as i32 + 127) << 23;
     y * f32::from_bits(e as u32) * scale
+}
+
+/// [`exp_f32`] on 8 lanes: the same operations in the same order.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn exp_avx2(x: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    let c = _mm256_set1_ps;
+    let small = _mm256_cmp_ps::<_CMP_LT_OQ>(x, c(EXP_MIN));
+    let x = _mm256_blendv_ps(x, _mm256_add_ps(x, c(32.0 * std::f32::consts::LN_2)), small);
+    let scale = _mm256_blendv_ps(c(1.0), c(2.328_306_4e-10), small);
+    let x = _mm256_min_ps(_mm256_max_ps(x, c(EXP_MIN)), c(EXP_MAX));
+    let t = _mm256_add_ps(_mm256_mul_ps(x, c(std::f32::consts::LOG2_E)), c(EXP_MAGIC));
+    let n = _mm256_sub_ps(t, c(EXP_MAGIC));
+    let r = _mm256_sub_ps(x, _mm256_mul_ps(n, c(EXP_LN2_HI)));
+    let r = _mm256_sub_ps(r, _mm256_mul_ps(n, c(EXP_LN2_LO)));
+    let mut p = c(EXP_POLY[0]);
+    for &k in &EXP_POLY[1..] {
+        p = _mm256_add_ps(_mm256_mul_ps(p, r), c(k));
+    }
+    let y = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(p, _mm256_mul_ps(r, r)), r),
+        c(1.0),
+    );
+    let e = _mm256_slli_epi32::<23>(_mm256_add_epi32(
+        _mm256_sub_epi32(
+            _mm256_castps_si256(t),
+            _mm256_set1_epi32(EXP_MAGIC.to_bits() as i32),
+        ),
+        _mm256_set1_epi32(127),
+    ));
+    _mm256_mul_ps(_mm256_mul_ps(y, _mm256_castsi256_ps(e)), scale)
 }
 
 /// Cells per block of [`Finisher::run`]: one AVX2 register of f32.
@@ -107,6 +153,9 @@ pub(crate) struct Finisher {
     colour: bool,
     /// 1/w of every cell of the layout, computed once per decode (weighted transforms only).
     rw: Option<Vec<f32>>,
+    /// Whole blocks of 1 or 3 unweighted components go through [`Finisher::blocks_avx2`]
+    /// (set only when the CPU has AVX2; same bits as the portable block, tested).
+    avx2: bool,
 }
 
 impl Finisher {
@@ -128,7 +177,15 @@ impl Finisher {
             eps,
             colour: t.colour.is_some(),
             rw: t.reciprocal_weights(layout.grid, layout.valid),
+            avx2: avx2(),
         }
+    }
+
+    /// The same finisher without the hand-vectorized blocks (tests compare the two).
+    #[cfg(test)]
+    pub(crate) fn portable(mut self) -> Finisher {
+        self.avx2 = false;
+        self
     }
 
     /// Cells `first..first + valid.len()` of the layout, held by the component runs `planes`,
@@ -156,6 +213,12 @@ impl Finisher {
         let ee: [f32; C] = std::array::from_fn(|k| self.eps.as_ref().map_or(0.0, |e| e[k]));
         let full = cells - cells % LANES;
         let mut f0 = 0;
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 && rw.is_none() && (C == 1 || C == 3) && full > 0 {
+            // SAFETY: `avx2` is set only when the CPU reports AVX2.
+            unsafe { self.blocks_avx2::<C>(&mm, &ee, planes, &valid[..full], out) };
+            f0 = full;
+        }
         while f0 < full {
             let ok: &[bool; LANES] = valid[f0..f0 + LANES]
                 .try_into()
@@ -222,6 +285,107 @@ impl Finisher {
         }
     }
 
+    /// The whole blocks of [`Finisher::run`] for 1 or 3 unweighted components, written with
+    /// AVX2 intrinsics: the autovectorized block spilled its lanes to the stack to interleave
+    /// the channels (a third of the decode of a MERL table). Every lane performs the portable
+    /// block's IEEE operations in the same order (`exp_avx2` mirrors [`exp_f32`]; `vmaxps`
+    /// and `vminps` are the selects written there), so the bits are the same.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    unsafe fn blocks_avx2<const C: usize>(
+        &self,
+        mm: &[[f32; C]; C],
+        ee: &[f32; C],
+        planes: [&[f32]; C],
+        valid: &[bool],
+        out: &mut [f32],
+    ) {
+        use std::arch::x86_64::*;
+        let cells = valid.len();
+        assert!(cells.is_multiple_of(LANES) && (C == 1 || C == 3));
+        assert!(planes.iter().all(|p| p.len() >= cells) && out.len() >= cells * C);
+        // No closures in here: they would not inherit the AVX2 target feature, and the
+        // intrinsics inside them would become calls.
+        let zero = _mm256_setzero_ps();
+        let max = _mm256_set1_ps(f32::MAX);
+        let mut eps = [zero; C];
+        let mut m = [[zero; C]; C];
+        for k in 0..C {
+            eps[k] = _mm256_set1_ps(ee[k]);
+            for i in 0..C {
+                m[i][k] = _mm256_set1_ps(mm[i][k]);
+            }
+        }
+        let log = self.eps.is_some();
+        // Channel interleave of 3 components: output vector j takes lane l from cell
+        // (8j + l) / 3, channel (8j + l) % 3.
+        let idx = [
+            _mm256_setr_epi32(0, 0, 0, 1, 1, 1, 2, 2),
+            _mm256_setr_epi32(2, 3, 3, 3, 4, 4, 4, 5),
+            _mm256_setr_epi32(5, 5, 6, 6, 6, 7, 7, 7),
+        ];
+        let mut f0 = 0;
+        while f0 < cells {
+            // SAFETY (every pointer access below): f0 + LANES ≤ cells, and the planes, the
+            // validity and `out` (C values per cell) hold at least `cells` cells (asserted).
+            let ok = unsafe { (valid.as_ptr().add(f0) as *const u64).read_unaligned() };
+            let dst = unsafe { out.as_mut_ptr().add(f0 * C) };
+            if ok == 0 {
+                for j in 0..C {
+                    unsafe { _mm256_storeu_ps(dst.add(j * LANES), zero) };
+                }
+                f0 += LANES;
+                continue;
+            }
+            // `bool` is 0 or 1: a lane is valid when its byte is nonzero.
+            let mask = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+                _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(ok as i64)),
+                _mm256_setzero_si256(),
+            ));
+            let mut z = [zero; C];
+            for k in 0..C {
+                z[k] = unsafe { _mm256_loadu_ps(planes[k].as_ptr().add(f0)) };
+            }
+            let mut y = [zero; C];
+            for k in 0..C {
+                let mut v = z[k];
+                if self.colour {
+                    v = zero;
+                    for i in 0..C {
+                        v = _mm256_add_ps(v, _mm256_mul_ps(m[i][k], z[i]));
+                    }
+                }
+                v = if log {
+                    _mm256_max_ps(_mm256_sub_ps(exp_avx2(v), eps[k]), zero)
+                } else {
+                    _mm256_min_ps(_mm256_max_ps(v, zero), max)
+                };
+                y[k] = _mm256_and_ps(v, mask);
+            }
+            if C == 1 {
+                unsafe { _mm256_storeu_ps(dst, y[0]) };
+            } else {
+                let (r, g, b) = (y[0], y[1 % C], y[2 % C]);
+                let mut o = [zero; 3];
+                for j in 0..3 {
+                    let rp = _mm256_permutevar8x32_ps(r, idx[j]);
+                    let gp = _mm256_permutevar8x32_ps(g, idx[j]);
+                    let bp = _mm256_permutevar8x32_ps(b, idx[j]);
+                    o[j] = match j {
+                        0 => _mm256_blend_ps::<0x24>(_mm256_blend_ps::<0x92>(rp, gp), bp),
+                        1 => _mm256_blend_ps::<0x49>(_mm256_blend_ps::<0x24>(rp, gp), bp),
+                        _ => _mm256_blend_ps::<0x92>(_mm256_blend_ps::<0x49>(rp, gp), bp),
+                    };
+                }
+                for j in 0..3 {
+                    unsafe { _mm256_storeu_ps(dst.add(j * LANES), o[j]) };
+                }
+            }
+            f0 += LANES;
+        }
+    }
+
     /// One block: y = Mᵀ z, then the inverse curve, per component.
     #[inline(always)]
     fn block<const C: usize>(
@@ -245,7 +409,7 @@ impl Finisher {
             }
             if self.eps.is_some() {
                 for l in 0..LANES {
-                    y[k][l] = (exp_f32(y[k][l]) - ee[k]).max(0.0);
+                    y[k][l] = non_negative(exp_f32(y[k][l]) - ee[k]);
                 }
             } else {
                 for l in 0..LANES {
@@ -330,7 +494,7 @@ fn curve_impl(eps: Option<&[f32]>, c: usize, valid: &[bool], v: &mut [f32]) {
     for (blk, ok) in v.chunks_mut(LANES * c).zip(valid.chunks(LANES)) {
         if let Some(e) = eps {
             for (x, &e) in blk.iter_mut().zip(e) {
-                *x = (exp_f32(*x) - e).max(0.0);
+                *x = non_negative(exp_f32(*x) - e);
             }
         } else {
             for x in blk.iter_mut() {
@@ -373,9 +537,15 @@ fn scale_finite(v: f32, rw: f32) -> f32 {
 /// decoded to −172), saturated at f32::MAX, NaN read as 0 (`max` drops NaN): never non-finite.
 #[inline(always)]
 fn linear_inverse(y: f32) -> f32 {
-    // Not `clamp`: it would keep NaN.
-    #[allow(clippy::manual_clamp)]
-    y.max(0.0).min(f32::MAX)
+    let y = non_negative(y);
+    if y < f32::MAX { y } else { f32::MAX }
+}
+
+/// y when y > 0, else +0 (NaN and −0 included): `vmaxps y, 0` exactly, unlike `f32::max`,
+/// whose choice between ±0 is unspecified.
+#[inline(always)]
+fn non_negative(y: f32) -> f32 {
+    if y > 0.0 { y } else { 0.0 }
 }
 
 /// The inverse curve: y, or max(e^y − ε, 0) (quantization noise may dip just below 0).
@@ -383,7 +553,7 @@ fn linear_inverse(y: f32) -> f32 {
 fn curve_inverse(y: f32, eps: Option<f32>) -> f32 {
     match eps {
         None => linear_inverse(y),
-        Some(e) => (exp_f32(y) - e).max(0.0),
+        Some(e) => non_negative(exp_f32(y) - e),
     }
 }
 
@@ -430,6 +600,77 @@ mod tests {
             check(x);
         }
         assert!(worst.0 <= 1.0, "worst {} ulp at x = {}", worst.0, worst.1);
+    }
+
+    /// Values a decoded plane can hold, hostile ones included.
+    fn plane_value(rng: &mut crate::math::SplitMix64) -> f32 {
+        match rng.next_u64() % 16 {
+            0 => f32::NAN,
+            1 => f32::INFINITY,
+            2 => f32::NEG_INFINITY,
+            3 => -0.0,
+            4 => 0.0,
+            5 => (rng.next_f64() * 400.0 - 200.0) as f32,
+            6 => f32::from_bits(rng.next_u64() as u32),
+            7 => (rng.next_f64() * 1e-40) as f32,
+            _ => (rng.next_f64() * 12.0 - 8.0) as f32,
+        }
+    }
+
+    #[test]
+    fn the_avx2_blocks_give_the_portable_bits() {
+        if !avx2() {
+            println!("skipped: this CPU has no AVX2, so only the portable blocks exist");
+            return;
+        }
+        let mut rng = crate::math::SplitMix64::new(11);
+        for case in 0..24 {
+            let c = if case % 2 == 0 { 3 } else { 1 };
+            let colour = c == 3 && case % 4 == 0;
+            let log = case % 3 != 0;
+            let cells = 8 * (case + 1) + case % 8;
+            let planes: Vec<Vec<f32>> = (0..c)
+                .map(|_| (0..cells).map(|_| plane_value(&mut rng)).collect())
+                .collect();
+            let valid: Vec<bool> = (0..cells)
+                .map(|i| i % 8 == 0 || !rng.next_u64().is_multiple_of(4))
+                .collect();
+            let fin = Finisher {
+                c,
+                m: if colour {
+                    (0..9)
+                        .map(|_| (rng.next_f64() * 4.0 - 2.0) as f32)
+                        .collect()
+                } else {
+                    (0..c * c)
+                        .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
+                        .collect()
+                },
+                eps: log.then(|| (0..c).map(|k| 1e-3 * (k + 1) as f32).collect()),
+                colour,
+                rw: None,
+                avx2: true,
+            };
+            let views: Vec<&[f32]> = planes.iter().map(|p| p.as_slice()).collect();
+            let mut fast = vec![f32::NAN; cells * c];
+            finish(&fin, &views, &valid, &mut fast);
+            let fin = fin.portable();
+            let mut slow = vec![f32::NAN; cells * c];
+            finish(&fin, &views, &valid, &mut slow);
+            for (i, (a, b)) in fast.iter().zip(&slow).enumerate() {
+                assert_eq!(
+                    a.to_bits(),
+                    b.to_bits(),
+                    "case {case} (c {c}, colour {colour}, log {log}) value {i}: {a:e} vs {b:e}"
+                );
+                assert!(a.is_finite() && *a >= 0.0, "case {case} value {i}: {a:e}");
+            }
+            for (cell, &ok) in fast.chunks(c).zip(&valid) {
+                if !ok {
+                    assert!(cell.iter().all(|v| v.to_bits() == 0));
+                }
+            }
+        }
     }
 
     #[test]
