@@ -17,6 +17,7 @@
 
 #![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
 
+use super::DecodeScratch;
 use super::dct::{Coefficients, dct_entry};
 use super::simd::{Finisher, dispatch, finish};
 
@@ -29,6 +30,10 @@ struct HalfBasis {
     h: usize,
     hp: usize,
     rows: Vec<f32>,
+    /// The same entries for the strided kernels, which read two outputs' weights per row:
+    /// `pairs[p·e + k]` = (C[k][2p], C[k][2p + 1]) for 2p + 1 < h, contiguous in k (read
+    /// from `rows`, a pair's weights are `hp` floats apart for every row, a cache line each).
+    pairs: Vec<[f32; 2]>,
 }
 
 /// Width of the register tiles of the contiguous kernel (outputs per tile).
@@ -49,7 +54,18 @@ impl HalfBasis {
                 };
             }
         }
-        HalfBasis { n, e, h, hp, rows }
+        let pairs = (0..h / 2)
+            .flat_map(|p| (0..e).map(move |k| (p, k)))
+            .map(|(p, k)| [rows[k * hp + 2 * p], rows[k * hp + 2 * p + 1]])
+            .collect();
+        HalfBasis {
+            n,
+            e,
+            h,
+            hp,
+            rows,
+            pairs,
+        }
     }
 }
 
@@ -113,45 +129,56 @@ pub(crate) fn next_permutation(p: &mut [usize]) -> bool {
     true
 }
 
-/// A separable expansion: `cur` (shape `cur_dims`) taken to full resolution `dims[a]` along
-/// each axis of `order` in turn; `pass(a, src, dst, outer, inner)` expands one axis (`dst` is
-/// `outer × dims[a] × inner`, every value written by the pass). Shared by the DCT and Tucker
-/// decoders; the two scratch buffers are swapped, never zeroed (zeroing cost more than a pass
-/// on small boxes).
+/// A separable expansion: `cur` (shape `cur_dims`; it may be longer, its tail is ignored)
+/// taken to full resolution `dims[a]` along each axis of `order` in turn;
+/// `pass(a, src, dst, outer, inner)` expands one axis (`dst` is `outer × dims[a] × inner`,
+/// every value written by the pass). Shared by the DCT and Tucker decoders; the two arrays
+/// come from `scratch` and are swapped, never zeroed (zeroing cost more than a pass on small
+/// boxes). The result may be longer than its shape.
 pub(crate) fn expand_axes(
     mut cur: Vec<f32>,
     mut cur_dims: Vec<usize>,
     dims: &[usize],
     order: &[usize],
+    scratch: &mut DecodeScratch,
     mut pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
 ) -> (Vec<f32>, Vec<usize>) {
-    let mut next = Vec::new();
+    let mut next = scratch.take_f32(0);
     for &a in order {
         let n = dims[a];
         let outer: usize = cur_dims[..a].iter().product();
         let inner: usize = cur_dims[a + 1..].iter().product();
-        next.resize(outer * n * inner, 0.0);
-        pass(a, &cur, &mut next, outer, inner);
+        let size_in = outer * cur_dims[a] * inner;
+        let size = outer * n * inner;
+        DecodeScratch::grow(&mut next, size);
+        pass(a, &cur[..size_in], &mut next[..size], outer, inner);
         std::mem::swap(&mut cur, &mut next);
         cur_dims[a] = n;
     }
+    scratch.give_f32(next);
     (cur, cur_dims)
 }
 
-/// The dequantized box expanded along the axes of `order` (in that order): the array and its
-/// shape (expanded axes at full resolution, the others at the box extent).
+/// The dequantized box expanded along the axes of `order` (in that order): the array (from
+/// `scratch`, possibly longer than its shape) and its shape (expanded axes at full
+/// resolution, the others at the box extent).
 fn expand_along(
     c: &Coefficients,
     dims: &[usize],
     step: f64,
     order: &[usize],
+    scratch: &mut DecodeScratch,
 ) -> (Vec<f32>, Vec<usize>) {
-    let cur: Vec<f32> = c.codes.iter().map(|&q| (q as f64 * step) as f32).collect();
+    let mut cur = scratch.take_f32(c.codes.len());
+    for (d, &q) in cur.iter_mut().zip(&c.codes) {
+        *d = (q as f64 * step) as f32;
+    }
     expand_axes(
         cur,
         c.extent.clone(),
         dims,
         order,
+        scratch,
         |a, src, dst, outer, inner| {
             let basis = HalfBasis::new(dims[a], c.extent[a]);
             if inner == 1 {
@@ -169,7 +196,10 @@ pub fn inverse(c: &Coefficients, dims: &[usize], step: f64) -> Vec<f32> {
     if c.codes.is_empty() || c.extent.len() != dims.len() {
         return vec![0.0; cells];
     }
-    expand_along(c, dims, step, &axis_order(&c.extent, dims)).0
+    let scratch = &mut DecodeScratch::default();
+    let mut plane = expand_along(c, dims, step, &axis_order(&c.extent, dims), scratch).0;
+    plane.truncate(cells);
+    plane
 }
 
 /// Decodes every component of a DCT payload and finishes each cell (colour, curve, 1/w,
@@ -184,6 +214,7 @@ pub(crate) fn decode(
     fin: &Finisher,
     valid: &[bool],
     out: &mut [f32],
+    scratch: &mut DecodeScratch,
 ) {
     let c = comps.len();
     let d = dims.len();
@@ -218,24 +249,28 @@ pub(crate) fn decode(
     }
     let (_, last, orders) = best.expect("at least one axis");
     // Every pass but the last, per component; an empty component is a box of extent 0.
-    let mut inter: Vec<Vec<f32>> = Vec::with_capacity(c);
+    let mut inter: Vec<(Vec<f32>, usize)> = Vec::with_capacity(c);
     let mut bases: Vec<HalfBasis> = Vec::with_capacity(c);
     for ((q, &s), order) in comps.iter().zip(steps).zip(&orders) {
         if empty(q) {
-            inter.push(Vec::new());
+            inter.push((Vec::new(), 0));
             bases.push(HalfBasis::new(dims[last], 0));
         } else {
-            inter.push(expand_along(q, dims, s, &order[..d - 1]).0);
+            let (a, shape) = expand_along(q, dims, s, &order[..d - 1], scratch);
+            inter.push((a, shape.iter().product()));
             bases.push(HalfBasis::new(dims[last], q.extent[last]));
         }
     }
-    let views: Vec<&[f32]> = inter.iter().map(|p| p.as_slice()).collect();
+    let views: Vec<&[f32]> = inter.iter().map(|(p, len)| &p[..*len]).collect();
     let outer: usize = dims[..last].iter().product();
     let inner: usize = dims[last + 1..].iter().product();
     if c == 1 {
         final_1(&views, &bases, outer, inner, fin, valid, out);
     } else {
         final_3(&views, &bases, outer, inner, fin, valid, out);
+    }
+    for (p, _) in inter {
+        scratch.give_f32(p);
     }
 }
 
@@ -592,7 +627,8 @@ fn strided_tile<const T: usize>(
     while j + 1 < b.h {
         let mut te = [[0f32; T]; 2];
         let mut to = [[0f32; T]; 2];
-        let w = |k: usize| (b.rows[k * b.hp + j], b.rows[k * b.hp + j + 1]);
+        let pair = &b.pairs[j / 2 * b.e..(j / 2 + 1) * b.e];
+        let w = |k: usize| (pair[k][0], pair[k][1]);
         accumulate_two::<T>(&mut te, s, inner, x0, even, w);
         accumulate_two::<T>(&mut to, s, inner, x0, odd, w);
         for p in 0..2 {

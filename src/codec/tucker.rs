@@ -31,6 +31,7 @@
 
 #![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
 
+use super::DecodeScratch;
 use super::dct::{self, Coefficients};
 use super::eigen::SymmetricEigen;
 use super::idct::{accumulate_two, expand_axes};
@@ -549,12 +550,11 @@ pub fn inverse(c: &Component, dims: &[usize], step: f64) -> Vec<f32> {
     if c.is_empty() {
         return vec![0.0; cells];
     }
-    let cur: Vec<f32> = c
-        .core
-        .codes
-        .iter()
-        .map(|&q| (q as f64 * step) as f32)
-        .collect();
+    let scratch = &mut DecodeScratch::default();
+    let mut cur = scratch.take_f32(c.core.codes.len());
+    for (d, &q) in cur.iter_mut().zip(&c.core.codes) {
+        *d = (q as f64 * step) as f32;
+    }
     let order = axis_order(&c.core.extent, dims);
     let expand = |a: usize, src: &[f32], dst: &mut [f32], outer: usize, inner: usize| {
         let b = Basis::new(&c.factors[a], dims[a]);
@@ -564,7 +564,9 @@ pub fn inverse(c: &Component, dims: &[usize], step: f64) -> Vec<f32> {
             expand_strided(src, dst, outer, inner, &b);
         }
     };
-    expand_axes(cur, c.core.extent.clone(), dims, &order, expand).0
+    let mut plane = expand_axes(cur, c.core.extent.clone(), dims, &order, scratch, expand).0;
+    plane.truncate(cells);
+    plane
 }
 
 /// Decodes every component and finishes each cell into `out` (cells × components values).
