@@ -6,12 +6,13 @@
 //! "production" are the DCT specs that `--max-error` selects for the table (see `SPECS`; the
 //! search's ε and step written out so the bench does not rerun the search). `decode` is the
 //! decoder files are read with (a fresh output vector per call); `decode_into` the same into
-//! a reused buffer; `decode_reference` the previous decoder (`codec::reference`), measured in
+//! a reused buffer; `decode_into_with` also reuses the decoder's working arrays
+//! (`DecodeScratch`); `decode_reference` the previous decoder (`codec::reference`), measured in
 //! the same run for the before/after ratio. Tucker cases
 //! (`tucker:`) compare with the f64 reference expansion; `cargo bench --bench codec -- tucker`
 //! runs only them.
 
-use brdfpack::codec::{CodecRequest, CodecSpec, Layout, reference, testdata};
+use brdfpack::codec::{CodecRequest, CodecSpec, DecodeScratch, Layout, reference, testdata};
 use brdfpack::table::Table;
 use std::collections::HashMap;
 use std::sync::{Mutex, OnceLock};
@@ -121,6 +122,21 @@ fn decode_into(bencher: divan::Bencher, case: &'static str) {
         .counter(divan::counter::BytesCount::new(t.data().len() * 4))
         .bench_local(|| {
             s.decode_into(divan::black_box(&p), &Layout::of(t), &mut buf)
+                .unwrap()
+        });
+}
+
+/// As `decode_into`, with the decoder's working arrays also kept between calls
+/// (`CodecSpec::decode_into_with` and one `DecodeScratch`).
+#[divan::bench(args = cases(), sample_count = 7)]
+fn decode_into_with(bencher: divan::Bencher, case: &'static str) {
+    let (t, s, p) = encoded(case);
+    let mut buf = vec![0f32; t.data().len()];
+    let mut scratch = DecodeScratch::default();
+    bencher
+        .counter(divan::counter::BytesCount::new(t.data().len() * 4))
+        .bench_local(|| {
+            s.decode_into_with(divan::black_box(&p), &Layout::of(t), &mut buf, &mut scratch)
                 .unwrap()
         });
 }
