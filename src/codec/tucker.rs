@@ -505,6 +505,9 @@ struct Basis {
     e: usize,
     np: usize,
     rows: Vec<f32>,
+    /// `pairs[p·e + k]` = (U[2p][k], U[2p + 1][k]) (0 past n): the strided kernel's weights
+    /// of two outputs, contiguous in k (in `rows` they are `np` floats apart for every k).
+    pairs: Vec<[f32; 2]>,
 }
 
 impl Basis {
@@ -517,7 +520,17 @@ impl Basis {
                 rows[k * np + t] = dequant(f.codes[k * n + t], f.steps[k]) as f32;
             }
         }
-        Basis { n, e, np, rows }
+        let pairs = (0..n.div_ceil(2))
+            .flat_map(|p| (0..e).map(move |k| (p, k)))
+            .map(|(p, k)| [rows[k * np + 2 * p], rows[k * np + 2 * p + 1]])
+            .collect();
+        Basis {
+            n,
+            e,
+            np,
+            rows,
+            pairs,
+        }
     }
 }
 
@@ -660,9 +673,8 @@ fn strided_tile<const T: usize>(
     while t < b.n {
         let two = t + 1 < b.n;
         let mut acc = [[0f32; T]; 2];
-        accumulate_two::<T>(&mut acc, s, inner, x0, rows, |k| {
-            (b.rows[k * b.np + t], b.rows[k * b.np + t + 1])
-        });
+        let pair = &b.pairs[t / 2 * b.e..(t / 2 + 1) * b.e];
+        accumulate_two::<T>(&mut acc, s, inner, x0, rows, |k| (pair[k][0], pair[k][1]));
         d[t * inner + x0..t * inner + x0 + T].copy_from_slice(&acc[0]);
         if two {
             d[(t + 1) * inner + x0..(t + 1) * inner + x0 + T].copy_from_slice(&acc[1]);
