@@ -372,8 +372,8 @@ fn figures_weight() {
 /// and against finer DCT steps: payload bytes, log_rmse / p99_rel_core on `uniform` 65,536
 /// pairs seed 1, and the largest error over every valid sample of the table in the curve
 /// space (log: ln(ε + x), a relative error of ε + x), with the bound the spec states. For each
-/// residual chain also the residual-section bytes with the other predictors (delta along the
-/// fastest axis, Lorenzo), to justify the default (no prediction).
+/// residual chain also the payload with each residual predictor (none, delta along the
+/// fastest axis, Lorenzo) and the one `resolve` chose by its entropy estimate.
 /// `BRDFPACK_SHARED=/work/shared nice cargo test --release --test codec_figures figures_residual -- --ignored --nocapture`
 /// (names `ggx-au-0.2:residual`, `gold-metallic-paint:residual` in `BRDFPACK_FIGURES`).
 #[test]
@@ -464,7 +464,9 @@ fn figures_residual() {
                 let mut delta = vec![0u8; d];
                 delta[d - 1] = 1;
                 line.push_str(&format!(
-                    "; payload with delta {} B, Lorenzo {} B",
+                    "; chosen orders {:?}; payload with none {} B, delta {} B, Lorenzo {} B",
+                    res.predict.orders,
+                    section(vec![0; d]),
                     section(delta),
                     section(vec![1; d])
                 ));

@@ -361,17 +361,57 @@ impl CodecSpec {
     /// Encodes the table's samples.
     pub fn encode(&self, table: &Table) -> Result<Vec<u8>> {
         let lossy = self.encode_chain(table)?;
-        let (Some(res), Some(transform)) = (self.residual(), self.transform()) else {
+        let Some(res) = self.residual() else {
             return Ok(lossy);
         };
-        // The residual is taken against exactly what the decoder reconstructs: the planes the
-        // decoder's own function returns for these very bytes.
         let layout = Layout::of(table);
         let dims = layout.dims();
-        let approx = self.lossy_planes(&lossy, &layout)?;
-        let z = component_planes(table, transform);
+        let (z, approx) = self.residual_inputs(table, &lossy)?;
         let section = res.encode(&z, &approx, &layout.shape(&dims))?;
         Ok(residual::join(&lossy, &section))
+    }
+
+    /// The source's transformed component planes and the decoder's reconstruction of them
+    /// from the `lossy` section. The residual is taken against exactly what the decoder
+    /// reconstructs: the planes the decoder's own function returns for these very bytes.
+    fn residual_inputs(
+        &self,
+        table: &Table,
+        lossy: &[u8],
+    ) -> Result<(Vec<Vec<f64>>, Vec<Vec<f32>>)> {
+        let transform = self
+            .transform()
+            .ok_or_else(|| Error::Failure("a residual without a transform".into()))?;
+        let approx = self.lossy_planes(lossy, &Layout::of(table))?;
+        Ok((component_planes(table, transform), approx))
+    }
+
+    /// The spec with the residual predictor that codes this table's residual best (by
+    /// [`residual::best_predictor`]); unchanged without a residual. Runs the lossy stage once
+    /// more (the encoder runs it again), as `predict=auto` of the lossless chain tries its
+    /// predictors at resolve time.
+    fn with_best_residual_predictor(mut self, table: &Table) -> Result<CodecSpec> {
+        if self.residual().is_none() {
+            return Ok(self);
+        }
+        let lossy = self.encode_chain(table)?;
+        let (z, approx) = self.residual_inputs(table, &lossy)?;
+        let layout = Layout::of(table);
+        let dims = layout.dims();
+        let shape = layout.shape(&dims);
+        if let CodecSpec::Dct {
+            residual: Some(r), ..
+        }
+        | CodecSpec::DctContext {
+            residual: Some(r), ..
+        }
+        | CodecSpec::Tucker {
+            residual: Some(r), ..
+        } = &mut self
+        {
+            r.predict = residual::best_predictor(&r.codes(&z, &approx, &shape)?, &shape)?;
+        }
+        Ok(self)
     }
 
     /// The payload of the chain without its residual stage.
@@ -1116,8 +1156,13 @@ impl CodecRequest {
     }
 
     /// The full spec for `table`: ε from the channel means, the colour matrix from the
-    /// channels' covariance, the predictor by trial, steps from ranges.
+    /// channels' covariance, the predictors by trial, steps from ranges.
     pub fn resolve(&self, table: &Table) -> Result<CodecSpec> {
+        self.resolve_stages(table)?
+            .with_best_residual_predictor(table)
+    }
+
+    fn resolve_stages(&self, table: &Table) -> Result<CodecSpec> {
         let c = table.channels().len();
         let d = table.grid().axes().len();
         let shape_dims = table.grid().shape();
@@ -1818,11 +1863,21 @@ mod tests {
                 "{s}"
             );
         }
-        // A step too fine for the table: an encode error naming the step, not a wrap.
-        let spec = CodecRequest::parse("dct:step=1,residual=1e-12")
+        // A step too fine for the table: an error naming the step, not a wrap (at resolve,
+        // which tries the residual predictors, and at encode).
+        let req = CodecRequest::parse("dct:step=1,residual=1e-12").unwrap();
+        let e = req.resolve(&t).unwrap_err().to_string();
+        assert!(e.contains("residual step 1e-12 is too small"), "{e}");
+        let mut spec = CodecRequest::parse("dct:step=1,residual=1")
             .unwrap()
             .resolve(&t)
             .unwrap();
+        if let CodecSpec::DctContext {
+            residual: Some(r), ..
+        } = &mut spec
+        {
+            r.step = vec![1e-12; 3];
+        }
         let e = spec.encode(&t).unwrap_err().to_string();
         assert!(e.contains("residual step 1e-12 is too small"), "{e}");
     }

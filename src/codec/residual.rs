@@ -36,27 +36,15 @@ pub struct ResidualStage {
 const LEN_BYTES: usize = 8;
 
 impl ResidualStage {
-    /// The stage a request `residual=S` resolves to for `components` components on a grid of
-    /// `axes` axes: no prediction (orders 0, see [`Self::default_orders`]), zstd at `level`.
+    /// A stage of step `step` for `components` components on a grid of `axes` axes, zstd at
+    /// `level`, without prediction (the first of [`candidates`]; a resolved request has the
+    /// best of them, [`best_predictor`]).
     pub fn new(step: f64, components: usize, axes: usize, level: i32) -> ResidualStage {
         ResidualStage {
             step: vec![step; components],
-            predict: Predictor {
-                orders: Self::default_orders(axes),
-                space: Space::Integer,
-                cross_channel: false,
-            },
+            predict: candidates(axes).swap_remove(0),
             entropy: Zstd { level },
         }
-    }
-
-    /// Predictor orders of a resolved request: none. What the DCT or Tucker stage leaves is
-    /// close to white noise at the steps that matter (below the lossy stage's own error), and
-    /// a difference of two independent codes has twice their variance (docs/compression.md,
-    /// "Quantized residual", measures the alternatives). Recorded in the header, so another
-    /// choice later stays decodable.
-    pub fn default_orders(axes: usize) -> Vec<u8> {
-        vec![0; axes]
     }
 
     /// Checks the stage against the layout (parameters from a header may be hostile).
@@ -86,6 +74,13 @@ impl ResidualStage {
     /// The residual section: `z[k]` the source's component k over every cell (f64), `approx[k]`
     /// the decoder's reconstruction of it; only valid cells are coded.
     pub fn encode(&self, z: &[Vec<f64>], approx: &[Vec<f32>], shape: &Shape) -> Result<Vec<u8>> {
+        let codes = self.codes(z, approx, shape)?;
+        let res = self.predict.residuals_i32(&codes, shape)?;
+        self.entropy.compress(&predict::shuffle(&res))
+    }
+
+    /// The quantized residual of every cell (cell-major, component fastest; invalid cells 0).
+    pub fn codes(&self, z: &[Vec<f64>], approx: &[Vec<f32>], shape: &Shape) -> Result<Vec<i32>> {
         let c = shape.channels;
         let q = self.quantizer();
         let mut codes = vec![0i32; shape.valid.len() * c];
@@ -109,8 +104,7 @@ impl ResidualStage {
                 })?;
             }
         }
-        let res = self.predict.residuals_i32(&codes, shape)?;
-        self.entropy.compress(&predict::shuffle(&res))
+        Ok(codes)
     }
 
     /// Adds the dequantized residual of `section` to every valid cell of `planes` (component
@@ -144,6 +138,42 @@ impl ResidualStage {
         }
         Ok(())
     }
+}
+
+/// The predictors a residual stage chooses from, in integer space without the cross-channel
+/// term (the colour transform already decorrelates the components): none, the delta along
+/// the fastest axis, the Lorenzo predictor. Which is smallest depends on S against the lossy
+/// stage's error: a coarse residual is close to white noise, which a difference only makes
+/// wider; a fine one follows the smooth error of the lossy stage, which prediction removes
+/// (docs/compression.md, "Quantized residual").
+pub fn candidates(axes: usize) -> Vec<Predictor> {
+    let mut delta = vec![0u8; axes];
+    if let Some(last) = delta.last_mut() {
+        *last = 1;
+    }
+    [vec![0u8; axes], delta, vec![1u8; axes]]
+        .into_iter()
+        .map(|orders| Predictor {
+            orders,
+            space: Space::Integer,
+            cross_channel: false,
+        })
+        .collect()
+}
+
+/// The candidate whose residuals of `codes` have the smallest order-0 entropy of their byte
+/// planes ([`predict::plane_entropy_bits`], the proxy the lossless chain chooses by); ties go
+/// to the earlier (simpler) one.
+pub fn best_predictor(codes: &[i32], shape: &Shape) -> Result<Predictor> {
+    let mut best: Option<(f64, Predictor)> = None;
+    for p in candidates(shape.dims.len()) {
+        let bits = predict::plane_entropy_bits(&p.residuals_i32(codes, shape)?);
+        if best.as_ref().is_none_or(|(b, _)| bits < *b) {
+            best = Some((bits, p));
+        }
+    }
+    best.map(|(_, p)| p)
+        .ok_or_else(|| Error::Failure("no residual predictor candidates".into()))
 }
 
 /// The payload of a chain with a residual: the lossy section's length, it, the residual.
@@ -246,6 +276,25 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_predictor_follows_the_residual() {
+        let dims = [16, 24];
+        let valid = vec![true; 16 * 24];
+        let shape = shape_of(&dims, &valid, 1);
+        // White noise: any difference widens it; no prediction.
+        let mut rng = crate::math::SplitMix64::new(3);
+        let noise: Vec<i32> = (0..16 * 24)
+            .map(|_| (rng.next_f64() * 9.0) as i32 - 4)
+            .collect();
+        assert_eq!(best_predictor(&noise, &shape).unwrap().orders, vec![0, 0]);
+        // A smooth slope in both axes (what a fine step sees of the lossy stage's error):
+        // Lorenzo leaves nothing.
+        let smooth: Vec<i32> = (0..16 * 24)
+            .map(|f| 40 * (f / 24) as i32 + 7 * (f % 24) as i32)
+            .collect();
+        assert_eq!(best_predictor(&smooth, &shape).unwrap().orders, vec![1, 1]);
     }
 
     #[test]
