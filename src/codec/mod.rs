@@ -386,10 +386,10 @@ impl CodecSpec {
         Ok((component_planes(table, transform), approx))
     }
 
-    /// The spec with the residual predictor that codes this table's residual best (by
-    /// [`residual::best_predictor`]); unchanged without a residual. Runs the lossy stage once
-    /// more (the encoder runs it again), as `predict=auto` of the lossless chain tries its
-    /// predictors at resolve time.
+    /// The spec with the residual predictor that codes this table's residual best (by a zstd
+    /// trial, [`residual::best_predictor`]); unchanged without a residual. Runs the lossy
+    /// stage once more (the encoder runs it again), as `predict=auto` of the lossless chain
+    /// tries its predictors at resolve time.
     fn with_best_residual_predictor(mut self, table: &Table) -> Result<CodecSpec> {
         if self.residual().is_none() {
             return Ok(self);
