@@ -366,24 +366,23 @@ impl CodecSpec {
         };
         let layout = Layout::of(table);
         let dims = layout.dims();
-        let (z, approx) = self.residual_inputs(table, &lossy)?;
-        let section = res.encode(&z, &approx, &layout.shape(&dims))?;
+        let r = self.residual_inputs(table, &lossy)?;
+        let section = res.encode(&r.source, &r.approx, &layout.shape(&dims))?;
         Ok(residual::join(&lossy, &section))
     }
 
     /// The source's transformed component planes and the decoder's reconstruction of them
     /// from the `lossy` section. The residual is taken against exactly what the decoder
     /// reconstructs: the planes the decoder's own function returns for these very bytes.
-    fn residual_inputs(
-        &self,
-        table: &Table,
-        lossy: &[u8],
-    ) -> Result<(Vec<Vec<f64>>, Vec<Vec<f32>>)> {
+    fn residual_inputs(&self, table: &Table, lossy: &[u8]) -> Result<ResidualInputs> {
         let transform = self
             .transform()
             .ok_or_else(|| Error::Failure("a residual without a transform".into()))?;
         let approx = self.lossy_planes(lossy, &Layout::of(table))?;
-        Ok((component_planes(table, transform), approx))
+        Ok(ResidualInputs {
+            source: component_planes(table, transform),
+            approx,
+        })
     }
 
     /// The spec with the residual predictor that codes this table's residual best (by a zstd
@@ -395,7 +394,7 @@ impl CodecSpec {
             return Ok(self);
         }
         let lossy = self.encode_chain(table)?;
-        let (z, approx) = self.residual_inputs(table, &lossy)?;
+        let inputs = self.residual_inputs(table, &lossy)?;
         let layout = Layout::of(table);
         let dims = layout.dims();
         let shape = layout.shape(&dims);
@@ -409,7 +408,8 @@ impl CodecSpec {
             residual: Some(r), ..
         } = &mut self
         {
-            r.predict = residual::best_predictor(&r.codes(&z, &approx, &shape)?, &shape)?;
+            let codes = r.codes(&inputs.source, &inputs.approx, &shape)?;
+            r.predict = residual::best_predictor(&codes, &shape)?;
         }
         Ok(self)
     }
@@ -694,6 +694,13 @@ impl CodecSpec {
             ))),
         }
     }
+}
+
+/// What a residual is taken between: the source's transformed component planes and the
+/// decoder's reconstruction of them (component k over every cell).
+struct ResidualInputs {
+    source: Vec<Vec<f64>>,
+    approx: Vec<Vec<f32>>,
 }
 
 /// The largest decompressed varint stream of a `dct` payload: at most 5 bytes per code plus

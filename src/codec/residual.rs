@@ -300,7 +300,7 @@ mod tests {
         // A smooth slope in both axes (what a fine step sees of the lossy stage's error):
         // Lorenzo leaves nothing.
         let smooth: Vec<i32> = (0..16 * 24)
-            .map(|f| 40 * (f / 24) as i32 + 7 * (f % 24) as i32)
+            .map(|f: i32| 40 * (f / 24) + 7 * (f % 24))
             .collect();
         assert_eq!(best_predictor(&smooth, &shape).unwrap().orders, vec![1, 1]);
     }
