@@ -1,9 +1,10 @@
 //! The header form of [`CodecSpec`]: the same chains, except that a DCT or Tucker chain with a
 //! quantized residual is a kind of its own (`"kind": "dct_residual"`, `"dct_context_residual"`,
 //! `"tucker_residual"`), not a `residual` field of the plain kind. A reader built before
-//! residuals existed ignores unknown fields, so it would have decoded the lossy section as the
-//! whole payload without a word (the length prefix would even make it fail obscurely); an
-//! unknown kind it refuses ("unknown variant"). Chains without a residual are written exactly
+//! residuals existed ignores unknown fields, so it would have read the whole payload (length
+//! prefix, lossy and residual sections) as the plain chain's: an unrelated error at best
+//! (zstd: not a frame), a wrong table at worst; an unknown kind it refuses ("unknown
+//! variant"). Chains without a residual are written exactly
 //! as before, byte for byte (tested below against a copy of the old enum).
 
 use super::CodecSpec;
