@@ -10,7 +10,7 @@
 //! (`DecodeScratch`); `decode_reference` the previous decoder (`codec::reference`), measured in
 //! the same run for the before/after ratio. Tucker cases
 //! (`tucker:`) compare with the f64 reference expansion; `cargo bench --bench codec -- tucker`
-//! runs only them.
+//! runs only them; `-- residual` the chains with a quantized residual.
 
 use brdfpack::codec::{CodecRequest, CodecSpec, DecodeScratch, Layout, reference, testdata};
 use brdfpack::table::Table;
@@ -53,6 +53,9 @@ fn cases() -> Vec<&'static str> {
         "ggx dct:eps=0.001,step=1.31,refine=4,weight=cosine",
         "ggx tucker:ranks=16x16x32,step=0.3",
         "ggx tucker:ranks=32x32x64,step=0.3",
+        // A quantized residual after the DCT: the separate, unfused decode path (component
+        // planes, + residual, finisher); `-- residual` runs only these.
+        "ggx dct:eps=0.001,step=0.3,residual=0.03",
     ];
     if gold().is_some() {
         v.extend([
@@ -61,6 +64,7 @@ fn cases() -> Vec<&'static str> {
             "gold production",
             "gold production-zstd",
             "gold tucker:ranks=32x32x64,step=0.3",
+            "gold dct:eps=0.001,step=0.3,residual=0.03",
         ]);
     } else {
         println!("skipped: gold cases (shared MERL data not found)");

@@ -204,3 +204,132 @@ fn tucker_files_are_the_same_bytes_for_any_thread_count() {
     let header = native::read_header(&one, Path::new("tucker.bpk")).unwrap();
     assert!(matches!(header.codec, CodecSpec::Tucker { .. }));
 }
+
+/// `compress --codec ...,residual=S` end to end: the file's header records the residual kind,
+/// it decodes with no flags within the stated bound of the source in the transformed space
+/// (every valid sample), `inspect` and `check` read it, and the bytes do not depend on the
+/// thread count (the DCT forward and the Tucker encoder run on rayon threads).
+#[test]
+fn compress_with_a_residual_round_trips_within_its_bound_through_the_cli() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = small_table_file(dir.path());
+    let source = native::from_bytes(&std::fs::read(&input).unwrap(), &input).unwrap();
+    for (codec, kind) in [
+        ("dct:step=0.5,residual=0.01", "dct_context_residual"),
+        ("dct:step=0.5,coding=zstd,residual=0.02", "dct_residual"),
+        (
+            "tucker:ranks=4x4x6,step=0.3,residual=0.01",
+            "tucker_residual",
+        ),
+    ] {
+        let run = |threads: &str| {
+            let out = dir.path().join(format!("{kind}-{threads}.bpk"));
+            let a = Command::cargo_bin("brdfpack")
+                .unwrap()
+                .env("RAYON_NUM_THREADS", threads)
+                .args([
+                    "compress",
+                    input.to_str().unwrap(),
+                    "-o",
+                    out.to_str().unwrap(),
+                ])
+                .args(["--codec", codec, "--samples", "2048"])
+                .assert()
+                .success();
+            let stdout = String::from_utf8(a.get_output().stdout.clone()).unwrap();
+            assert!(
+                stdout.contains(&format!("\"kind\":\"{kind}\"")),
+                "{codec}: {stdout}"
+            );
+            assert!(
+                stdout.contains("preserves: every valid sample within ±"),
+                "{codec}: {stdout}"
+            );
+            let bytes = std::fs::read(&out).unwrap();
+            (out, bytes)
+        };
+        let (out, one) = run("1");
+        assert_eq!(one, run("2").1, "{codec}: bytes depend on the thread count");
+        let header = native::read_header(&one, &out).unwrap();
+        let spec = header.codec;
+        assert!(spec.residual().is_some(), "{codec}");
+        let bound = spec.max_transformed_error().unwrap();
+        let t = native::from_bytes(&one, &out).unwrap();
+        let tr = spec.transform().unwrap();
+        let curve_only = brdfpack::codec::transform::Transform {
+            colour: None,
+            ..tr.clone()
+        };
+        let c = 3;
+        let a = curve_only.forward_all(t.data(), c, t.grid(), t.valid());
+        let b = curve_only.forward_all(source.data(), c, t.grid(), t.valid());
+        let mut worst = 0f64;
+        for (f, &ok) in t.valid().iter().enumerate() {
+            for k in 0..c {
+                let i = f * c + k;
+                if !ok {
+                    assert_eq!(t.data()[i], 0.0, "{codec}: invalid cell {f}");
+                    continue;
+                }
+                // f32 rounding of the decoded value (log space: a few 1e-7).
+                assert!(
+                    (a[i] - b[i]).abs() <= bound + 1e-5,
+                    "{codec}: value {i}: {} vs {} (bound {bound})",
+                    a[i],
+                    b[i]
+                );
+                worst = worst.max((a[i] - b[i]).abs());
+            }
+        }
+        assert!(worst > 0.2 * bound, "{codec}: {worst} vs {bound}");
+        let i = Command::cargo_bin("brdfpack")
+            .unwrap()
+            .args(["inspect", out.to_str().unwrap(), "--json"])
+            .assert()
+            .success();
+        let v: serde_json::Value = serde_json::from_slice(&i.get_output().stdout).unwrap();
+        assert_eq!(v["negative_values"], 0, "{v}");
+        assert_eq!(v["valid_cells"].as_u64().unwrap() as usize, {
+            t.valid().iter().filter(|&&ok| ok).count()
+        });
+        let ch = Command::cargo_bin("brdfpack")
+            .unwrap()
+            .args(["check", out.to_str().unwrap(), "--against"])
+            .arg(&input)
+            .args(["--uniform-only", "--samples", "4096", "--json"])
+            .args(["--max-log-rmse", "0.01"])
+            .assert()
+            .success();
+        let v: serde_json::Value = serde_json::from_slice(&ch.get_output().stdout).unwrap();
+        assert_eq!(v["bounds_exceeded"], serde_json::json!([]), "{codec}: {v}");
+    }
+}
+
+/// A truncated residual file: exit 2 naming the file, no panic.
+#[test]
+fn a_truncated_residual_file_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = small_table_file(dir.path());
+    let out = dir.path().join("res.bpk");
+    Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "compress",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .args(["--codec", "dct:step=0.5,residual=0.01", "--samples", "1024"])
+        .assert()
+        .success();
+    let bytes = std::fs::read(&out).unwrap();
+    let cut = dir.path().join("cut.bpk");
+    std::fs::write(&cut, &bytes[..bytes.len() - 7]).unwrap();
+    Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args(["inspect", cut.to_str().unwrap()])
+        .assert()
+        .code(2)
+        .stderr(predicates::str::contains("cut.bpk"))
+        .stderr(predicates::str::contains("panicked").not());
+}

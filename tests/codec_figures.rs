@@ -367,3 +367,111 @@ fn figures_weight() {
         }
     }
 }
+
+/// The quantized residual (`residual=S`, issue 5 stage 6) against the same chains without it
+/// and against finer DCT steps: payload bytes, log_rmse / p99_rel_core on `uniform` 65,536
+/// pairs seed 1, and the largest error over every valid sample of the table in the curve
+/// space (log: ln(ε + x), a relative error of ε + x), with the bound the spec states. For each
+/// residual chain also the payload with each residual predictor (none, delta along the
+/// fastest axis, Lorenzo) and the one `resolve` chose by its entropy estimate.
+/// `BRDFPACK_SHARED=/work/shared nice cargo test --release --test codec_figures figures_residual -- --ignored --nocapture`
+/// (names `ggx-au-0.2:residual`, `gold-metallic-paint:residual` in `BRDFPACK_FIGURES`).
+#[test]
+#[ignore]
+fn figures_residual() {
+    use brdfpack::codec::search::Evaluator;
+    use brdfpack::codec::transform::Transform;
+    let mut cases: Vec<(String, Table)> = Vec::new();
+    if wanted("ggx-au-0.2", "residual") {
+        cases.push(("ggx-au-0.2".into(), testdata::ggx_merl(0.2)));
+    }
+    if wanted("gold-metallic-paint", "residual")
+        && let Some(t) = testdata::shared_merl("gold-metallic-paint")
+    {
+        cases.push(("gold-metallic-paint".into(), t));
+    }
+    let set = SampleSet::uniform(65_536, 1);
+    for (name, t) in &cases {
+        let ev = Evaluator::new(t, &set).unwrap();
+        let c = t.channels().len();
+        let layout = Layout::of(t);
+        let max_curve_error = |spec: &CodecSpec, payload: &[u8]| -> f64 {
+            let dec = spec.decode(payload, &layout).unwrap();
+            let curve_only = Transform {
+                colour: None,
+                ..spec.transform().unwrap().clone()
+            };
+            let a = curve_only.forward_all(&dec, c, t.grid(), t.valid());
+            let b = curve_only.forward_all(t.data(), c, t.grid(), t.valid());
+            (0..t.grid().cells())
+                .filter(|&f| t.valid()[f])
+                .flat_map(|f| (0..c).map(move |k| f * c + k))
+                .map(|i| (a[i] - b[i]).abs())
+                .fold(0f64, f64::max)
+        };
+        let mut reqs: Vec<String> = Vec::new();
+        for base in [
+            "dct:step=0.3",
+            "dct:step=1",
+            "tucker:ranks=16x16x32,step=0.3",
+        ] {
+            reqs.push(base.into());
+            for s in [0.1, 0.03, 0.01] {
+                reqs.push(format!("{base},residual={s}"));
+            }
+        }
+        reqs.extend(["dct:step=0.1".into(), "dct:step=0.03".into()]);
+        for req in &reqs {
+            let spec = CodecRequest::parse(req).unwrap().resolve(t).unwrap();
+            let t0 = Instant::now();
+            let m = ev.measure(&spec).unwrap();
+            let enc_s = t0.elapsed().as_secs_f64();
+            assert_eq!(m.metrics.nonfinite, 0, "{name} {req}");
+            let worst = max_curve_error(&spec, &m.payload);
+            let bound = spec.max_transformed_error();
+            if let Some(b) = bound {
+                // f32 rounding of the decoded values: a few 1e-7 in log space.
+                assert!(worst <= b + 1e-5, "{name} {req}: {worst} > {b}");
+            }
+            let dec = decode_seconds(&spec, &m.payload, t, 3);
+            let mut line = format!(
+                "RESIDUAL {name} {req}: payload {} B log_rmse {:.4e} p99_rel_core {:.4e} \
+                 max curve-space error {worst:.4e} (bound {}) (encode+measure {enc_s:.1} s, decode {:.1} ms)",
+                m.payload.len(),
+                m.metrics.log_rmse,
+                m.metrics.p99_rel_core,
+                bound.map_or("none".into(), |b| format!("{b:.4e}")),
+                dec * 1e3
+            );
+            if let Some(res) = spec.residual() {
+                let section = |orders: Vec<u8>| {
+                    let mut s2 = spec.clone();
+                    match &mut s2 {
+                        CodecSpec::Dct {
+                            residual: Some(r), ..
+                        }
+                        | CodecSpec::DctContext {
+                            residual: Some(r), ..
+                        }
+                        | CodecSpec::Tucker {
+                            residual: Some(r), ..
+                        } => r.predict.orders = orders,
+                        _ => unreachable!(),
+                    }
+                    s2.encode(t).unwrap().len()
+                };
+                let d = res.predict.orders.len();
+                let mut delta = vec![0u8; d];
+                delta[d - 1] = 1;
+                line.push_str(&format!(
+                    "; chosen orders {:?}; payload with none {} B, delta {} B, Lorenzo {} B",
+                    res.predict.orders,
+                    section(vec![0; d]),
+                    section(delta),
+                    section(vec![1; d])
+                ));
+            }
+            println!("{line}");
+        }
+    }
+}

@@ -7,7 +7,9 @@
 //! (4) [`predict`] — residuals from grid neighbours, byte-plane shuffle; (5) [`entropy`] —
 //! zstd, or for DCT coefficients [`coefcode`], a context-adaptive range coder; (6) [`dct`] —
 //! transform coding of the whole table with quantized coefficients; (6b) [`tucker`] — a
-//! truncated Tucker (HOSVD) low-rank decomposition with quantized factors and core.
+//! truncated Tucker (HOSVD) low-rank decomposition with quantized factors and core; (6c)
+//! [`residual`] — optionally after either, the quantized difference between the table and
+//! what the decoder reconstructs, which bounds every sample's error.
 //!
 //! A [`CodecSpec`] is the fully resolved chain (every data-derived parameter written out) and
 //! is recorded in the file header, so any file decodes with no flags. A [`CodecRequest`] is
@@ -19,12 +21,14 @@ pub mod dct;
 pub mod domain;
 pub mod eigen;
 pub mod entropy;
+mod header;
 mod idct;
 pub mod predict;
 pub mod quantize;
 #[doc(hidden)]
 pub mod reference;
 mod request_text;
+pub mod residual;
 pub mod search;
 mod simd;
 #[doc(hidden)]
@@ -43,9 +47,11 @@ use quantize::Quantizer;
 use serde::{Deserialize, Serialize};
 use transform::{Colour, Curve, Transform, Weight};
 
-/// A codec, as recorded in a file header.
+/// A codec, as recorded in a file header (through [`header::SpecRecord`]: a chain with a
+/// residual is written as a kind of its own, `dct_residual`, `dct_context_residual` or
+/// `tucker_residual`, which readers from before residuals refuse).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(from = "header::SpecRecord", into = "header::SpecRecord")]
 pub enum CodecSpec {
     /// Lossless: the f32 samples of every cell (little-endian, cell-major, channel fastest)
     /// compressed with zstd. Typical ratio 1.1–2× on smooth tables.
@@ -73,6 +79,8 @@ pub enum CodecSpec {
         transform: Transform,
         dct: dct::DctStage,
         entropy: Zstd,
+        /// Optional quantized residual after the DCT: every valid component within step/2.
+        residual: Option<residual::ResidualStage>,
     },
     /// Lossy transform coding, context-coded: as `Dct` (the decoder is the same up to the
     /// coefficients), with dead-zone quantization, optionally a refined fill of the invalid
@@ -84,6 +92,8 @@ pub enum CodecSpec {
         transform: Transform,
         dct: dct::DctStage,
         coding: coefcode::ContextCoding,
+        /// Optional quantized residual after the DCT: every valid component within step/2.
+        residual: Option<residual::ResidualStage>,
     },
     /// Lossy low rank: fill invalid cells, transform, truncated Tucker decomposition of every
     /// component (factor matrices per grid axis and a core, both quantized), zstd.
@@ -92,6 +102,9 @@ pub enum CodecSpec {
         transform: Transform,
         tucker: tucker::TuckerStage,
         entropy: Zstd,
+        /// Optional quantized residual after the Tucker stage: every valid component within
+        /// step/2.
+        residual: Option<residual::ResidualStage>,
     },
 }
 
@@ -160,21 +173,32 @@ impl CodecSpec {
                 transform,
                 quantize: Quantizer::Uniform { step, .. },
                 ..
-            } => {
-                // Through an orthonormal colour matrix each channel gets Σ_i |M_ik| step_i/2.
-                let c = step.len();
-                let e = match &transform.colour {
-                    None => step.iter().fold(0.0f64, |m, s| m.max(s / 2.0)),
-                    Some(col) => (0..c)
-                        .map(|k| {
-                            (0..c)
-                                .map(|i| col.matrix[i * c + k].abs() * step[i] / 2.0)
-                                .sum()
-                        })
-                        .fold(0.0f64, f64::max),
-                };
-                Some(e)
+            } => Some(half_steps_through_colour(transform, step)),
+            CodecSpec::Dct {
+                transform,
+                residual: Some(r),
+                ..
             }
+            | CodecSpec::DctContext {
+                transform,
+                residual: Some(r),
+                ..
+            }
+            | CodecSpec::Tucker {
+                transform,
+                residual: Some(r),
+                ..
+            } => Some(half_steps_through_colour(transform, &r.step)),
+            _ => None,
+        }
+    }
+
+    /// The quantized residual stage of a DCT or Tucker chain, when it has one.
+    pub fn residual(&self) -> Option<&residual::ResidualStage> {
+        match self {
+            CodecSpec::Dct { residual, .. }
+            | CodecSpec::DctContext { residual, .. }
+            | CodecSpec::Tucker { residual, .. } => residual.as_ref(),
             _ => None,
         }
     }
@@ -205,6 +229,14 @@ impl CodecSpec {
     }
 
     fn preserves_unweighted(&self) -> String {
+        if let (Some(r), Some(e)) = (self.residual(), self.max_transformed_error()) {
+            return format!(
+                "every valid sample within ±{e:.3e} in the transformed space (a quantized \
+                 residual of step {:.3e} after the lossy stage: each component within step/2, \
+                 plus f32 rounding)",
+                r.step.iter().fold(0.0f64, |m, s| m.max(*s))
+            );
+        }
         match self {
             CodecSpec::ZstdF32 { .. } | CodecSpec::Lossless { .. } => {
                 "every valid sample bit for bit".into()
@@ -253,6 +285,10 @@ impl CodecSpec {
             }
             Ok(())
         };
+        let check_residual = |r: &Option<residual::ResidualStage>| match r {
+            Some(r) => r.validate(d, c),
+            None => Ok(()),
+        };
         let check_pred = |p: &Predictor| {
             if p.orders.len() != d {
                 return Err(Error::input(format!(
@@ -275,13 +311,23 @@ impl CodecSpec {
                 quantize.validate(c)?;
                 check_pred(predict)
             }
-            CodecSpec::Dct { transform, dct, .. } => check_dct(transform, dct),
+            CodecSpec::Dct {
+                transform,
+                dct,
+                residual,
+                ..
+            } => {
+                check_residual(residual)?;
+                check_dct(transform, dct)
+            }
             CodecSpec::DctContext {
                 domain,
                 transform,
                 dct,
                 coding,
+                residual,
             } => {
+                check_residual(residual)?;
                 check_dct(transform, dct)?;
                 if let Domain::FillRefined { iterations } = domain
                     && *iterations > domain::MAX_REFINE
@@ -297,8 +343,10 @@ impl CodecSpec {
                 domain,
                 transform,
                 tucker,
+                residual,
                 ..
             } => {
+                check_residual(residual)?;
                 if *domain != Domain::FillInvalid {
                     return Err(Error::input(format!(
                         "tucker domain {domain:?}: only fill_invalid is defined"
@@ -312,6 +360,62 @@ impl CodecSpec {
 
     /// Encodes the table's samples.
     pub fn encode(&self, table: &Table) -> Result<Vec<u8>> {
+        let lossy = self.encode_chain(table)?;
+        let Some(res) = self.residual() else {
+            return Ok(lossy);
+        };
+        let layout = Layout::of(table);
+        let dims = layout.dims();
+        let r = self.residual_inputs(table, &lossy)?;
+        let section = res.encode(&r.source, &r.approx, &layout.shape(&dims))?;
+        Ok(residual::join(&lossy, &section))
+    }
+
+    /// The source's transformed component planes and the decoder's reconstruction of them
+    /// from the `lossy` section. The residual is taken against exactly what the decoder
+    /// reconstructs: the planes the decoder's own function returns for these very bytes.
+    fn residual_inputs(&self, table: &Table, lossy: &[u8]) -> Result<ResidualInputs> {
+        let transform = self
+            .transform()
+            .ok_or_else(|| Error::Failure("a residual without a transform".into()))?;
+        let approx = self.lossy_planes(lossy, &Layout::of(table))?;
+        Ok(ResidualInputs {
+            source: component_planes(table, transform),
+            approx,
+        })
+    }
+
+    /// The spec with the residual predictor that codes this table's residual best (by a zstd
+    /// trial, [`residual::best_predictor`]); unchanged without a residual. Runs the lossy
+    /// stage once more (the encoder runs it again), as `predict=auto` of the lossless chain
+    /// tries its predictors at resolve time.
+    fn with_best_residual_predictor(mut self, table: &Table) -> Result<CodecSpec> {
+        if self.residual().is_none() {
+            return Ok(self);
+        }
+        let lossy = self.encode_chain(table)?;
+        let inputs = self.residual_inputs(table, &lossy)?;
+        let layout = Layout::of(table);
+        let dims = layout.dims();
+        let shape = layout.shape(&dims);
+        if let CodecSpec::Dct {
+            residual: Some(r), ..
+        }
+        | CodecSpec::DctContext {
+            residual: Some(r), ..
+        }
+        | CodecSpec::Tucker {
+            residual: Some(r), ..
+        } = &mut self
+        {
+            let codes = r.codes(&inputs.source, &inputs.approx, &shape)?;
+            r.predict = residual::best_predictor(&codes, &shape)?;
+        }
+        Ok(self)
+    }
+
+    /// The payload of the chain without its residual stage.
+    fn encode_chain(&self, table: &Table) -> Result<Vec<u8>> {
         let layout = Layout::of(table);
         self.validate(&layout)?;
         let c = layout.channels;
@@ -371,6 +475,7 @@ impl CodecSpec {
                 transform,
                 dct: stage,
                 coding,
+                ..
             } => {
                 let coefs = dct_coefficients_for(table, transform, *domain, &stage.step, coding)?;
                 for (p, &s) in coefs.iter().zip(&stage.step) {
@@ -430,6 +535,9 @@ impl CodecSpec {
                 "decode buffer holds {} values, the table has {values}",
                 out.len()
             )));
+        }
+        if let Some(res) = self.residual() {
+            return self.decode_with_residual(res, payload, layout, out);
         }
         let c = layout.channels;
         let dims = layout.dims();
@@ -499,12 +607,7 @@ impl CodecSpec {
                 entropy,
                 ..
             } => {
-                // Varints take at most 5 bytes per code plus 10 per extent.
-                let cap = values
-                    .checked_mul(5)
-                    .and_then(|v| v.checked_add(10 * c * dims.len() + 16))
-                    .ok_or_else(|| Error::input("table too large"))?;
-                let raw = entropy.decompress_capped(payload, cap)?;
+                let raw = entropy.decompress_capped(payload, dct_stream_cap(layout)?)?;
                 let comps = dct::deserialize(&raw, &dims, c)?;
                 let fin = simd::Finisher::new(transform, layout);
                 idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, out, scratch);
@@ -575,6 +678,111 @@ impl DecodeScratch {
         if v.len() < n {
             v.resize(n, 0.0);
         }
+    }
+}
+
+impl CodecSpec {
+    /// A chain with a residual: the lossy section decoded to component planes in the
+    /// transformed space (not fused with the finisher), the residual added, then finished.
+    fn decode_with_residual(
+        &self,
+        res: &residual::ResidualStage,
+        payload: &[u8],
+        layout: &Layout,
+        out: &mut [f32],
+    ) -> Result<()> {
+        let transform = self
+            .transform()
+            .ok_or_else(|| Error::Failure("a residual without a transform".into()))?;
+        let dims = layout.dims();
+        let (lossy, section) = residual::split(payload)?;
+        let mut planes = self.lossy_planes(lossy, layout)?;
+        res.add(section, &mut planes, &layout.shape(&dims))?;
+        let fin = simd::Finisher::new(transform, layout);
+        let views: Vec<&[f32]> = planes.iter().map(|p| p.as_slice()).collect();
+        simd::finish(&fin, &views, layout.valid, out);
+        Ok(())
+    }
+
+    /// The component planes (transformed space, every cell) that the lossy section of a DCT
+    /// or Tucker chain decodes to: what the encoder takes its residual against and the
+    /// decoder adds it to, the same bits on both sides (one function; its kernels give the
+    /// same bits on every CPU, `simd`).
+    fn lossy_planes(&self, lossy: &[u8], layout: &Layout) -> Result<Vec<Vec<f32>>> {
+        let c = layout.channels;
+        let dims = layout.dims();
+        match self {
+            CodecSpec::Dct {
+                dct: stage,
+                entropy,
+                ..
+            } => {
+                let raw = entropy.decompress_capped(lossy, dct_stream_cap(layout)?)?;
+                let comps = dct::deserialize(&raw, &dims, c)?;
+                Ok(comps
+                    .iter()
+                    .zip(&stage.step)
+                    .map(|(q, &s)| idct::inverse(q, &dims, s))
+                    .collect())
+            }
+            CodecSpec::DctContext { dct: stage, .. } => {
+                let comps = coefcode::decode(lossy, &dims, c)?;
+                Ok(comps
+                    .iter()
+                    .zip(&stage.step)
+                    .map(|(q, &s)| idct::inverse(q, &dims, s))
+                    .collect())
+            }
+            CodecSpec::Tucker {
+                tucker: stage,
+                entropy,
+                ..
+            } => {
+                let comps = tucker_components(lossy, &dims, stage, entropy)?;
+                Ok(comps
+                    .iter()
+                    .zip(&stage.step)
+                    .map(|(q, &s)| tucker::inverse(q, &dims, s))
+                    .collect())
+            }
+            _ => Err(Error::Failure(format!(
+                "{}: no lossy approximation to add a residual to",
+                self.summary()
+            ))),
+        }
+    }
+}
+
+/// What a residual is taken between: the source's transformed component planes and the
+/// decoder's reconstruction of them (component k over every cell).
+struct ResidualInputs {
+    source: Vec<Vec<f64>>,
+    approx: Vec<Vec<f32>>,
+}
+
+/// The largest decompressed varint stream of a `dct` payload: at most 5 bytes per code plus
+/// 10 per extent.
+fn dct_stream_cap(layout: &Layout) -> Result<usize> {
+    layout
+        .values()?
+        .checked_mul(5)
+        .and_then(|v| v.checked_add(10 * layout.channels * layout.grid.axes().len() + 16))
+        .ok_or_else(|| Error::input("table too large"))
+}
+
+/// The largest error per channel of the curve space when every component k of z = M y is
+/// within step_k/2: Σ_i |M_ik| step_i/2 through an orthonormal colour matrix, step/2 without.
+fn half_steps_through_colour(transform: &Transform, step: &[f64]) -> f64 {
+    let c = step.len();
+    match &transform.colour {
+        None => step.iter().fold(0.0f64, |m, s| m.max(s / 2.0)),
+        Some(col) => (0..c)
+            .map(|k| {
+                (0..c)
+                    .map(|i| col.matrix[i * c + k].abs() * step[i] / 2.0)
+                    .sum()
+            })
+            .fold(0.0f64, f64::max),
     }
 }
 
@@ -710,6 +918,8 @@ pub enum CodecRequest {
         step: f64,
         colour: bool,
         coding: DctCoding,
+        /// Step of the quantized residual (`residual=S`), none by default.
+        residual: Option<f64>,
     },
     Tucker {
         curve: CurveRequest,
@@ -719,6 +929,8 @@ pub enum CodecRequest {
         factor_step: f64,
         colour: bool,
         level: i32,
+        /// Step of the quantized residual (`residual=S`), none by default.
+        residual: Option<f64>,
     },
 }
 
@@ -799,6 +1011,27 @@ impl CodecRequest {
             None | Some("none") => None,
             Some("cos" | "cosine") => Some(Weight::Cosine),
             Some(v) => return Err(bad("weight", v, "cosine (or cos) or none")),
+        };
+        // Parsed here for every codec, refused below for those without a lossy approximation
+        // to follow (as any option that does not apply).
+        let residual = match take("residual") {
+            None => None,
+            Some(v) if !matches!(name, "dct" | "tucker") => {
+                return Err(Error::input(format!(
+                    "codec {spec:?}: residual={v} applies to dct and tucker only (a quantized \
+                     residual after their lossy approximation)"
+                )));
+            }
+            Some(v) => match v.parse::<f64>() {
+                Ok(s) if s.is_finite() && s > 0.0 => Some(s),
+                _ => {
+                    return Err(bad(
+                        "residual",
+                        &v,
+                        "a positive step (in the transformed space)",
+                    ));
+                }
+            },
         };
         if weight.is_some() && matches!(name, "zstd-f32" | "lossless") {
             return Err(Error::input(format!(
@@ -927,6 +1160,7 @@ impl CodecRequest {
                     step,
                     colour,
                     coding,
+                    residual,
                 }
             }
             "tucker" => {
@@ -967,6 +1201,7 @@ impl CodecRequest {
                     factor_step,
                     colour,
                     level,
+                    residual,
                 }
             }
             _ => {
@@ -985,8 +1220,13 @@ impl CodecRequest {
     }
 
     /// The full spec for `table`: ε from the channel means, the colour matrix from the
-    /// channels' covariance, the predictor by trial, steps from ranges.
+    /// channels' covariance, the predictors by trial, steps from ranges.
     pub fn resolve(&self, table: &Table) -> Result<CodecSpec> {
+        self.resolve_stages(table)?
+            .with_best_residual_predictor(table)
+    }
+
+    fn resolve_stages(&self, table: &Table) -> Result<CodecSpec> {
         let c = table.channels().len();
         let d = table.grid().axes().len();
         let shape_dims = table.grid().shape();
@@ -1073,17 +1313,22 @@ impl CodecRequest {
                 step,
                 colour,
                 coding,
+                residual,
             } => {
                 let transform = transform_for(table, *curve, *colour, *weight);
                 let dct = dct::DctStage {
                     step: vec![*step; c],
                 };
+                // The residual's zstd level: the chain's, 19 with context coding (no level).
+                let residual = residual
+                    .map(|s| residual::ResidualStage::new(s, c, d, self.level().unwrap_or(19)));
                 match *coding {
                     DctCoding::Zstd { level } => CodecSpec::Dct {
                         domain: Domain::FillInvalid,
                         transform,
                         dct,
                         entropy: Zstd { level },
+                        residual,
                     },
                     DctCoding::Context { deadzone, refine } => CodecSpec::DctContext {
                         domain: if refine > 0 {
@@ -1094,6 +1339,7 @@ impl CodecRequest {
                         transform,
                         dct,
                         coding: coefcode::ContextCoding { deadzone },
+                        residual,
                     },
                 }
             }
@@ -1105,6 +1351,7 @@ impl CodecRequest {
                 factor_step,
                 colour,
                 level,
+                residual,
             } => {
                 let stage = tucker::TuckerStage {
                     ranks: ranks.clone(),
@@ -1119,6 +1366,7 @@ impl CodecRequest {
                     transform: transform_for(table, *curve, *colour, *weight),
                     tucker: stage,
                     entropy: Zstd { level: *level },
+                    residual: residual.map(|s| residual::ResidualStage::new(s, c, d, *level)),
                 }
             }
         })
@@ -1290,6 +1538,9 @@ mod tests {
             "dct:step=0.05,coding=zstd,level=3",
             "dct:step=0.05",
             "dct:step=0.05,colour=none,curve=linear",
+            "dct:step=0.05,residual=0.01",
+            "dct:step=0.05,coding=zstd,residual=0.01",
+            "tucker:ranks=4x4x6,residual=0.01",
         ] {
             let spec = CodecRequest::parse(req).unwrap().resolve(&t).unwrap();
             let payload = spec.encode(&t).unwrap();
@@ -1332,6 +1583,10 @@ mod tests {
             "tucker:ranks=8x8x12,step=0.01,curve=linear,colour=none,level=3",
             // Full rank: w·x is not as low-rank as x, so a truncation would say nothing of w.
             "tucker:ranks=8x8x12,step=0.001,weight=cosine",
+            "dct:step=0.5,residual=0.01",
+            "dct:step=0.5,coding=zstd,level=3,residual=0.02,curve=linear",
+            "tucker:ranks=2x2x3,step=0.5,residual=0.01,colour=none",
+            "dct:step=0.5,residual=0.005,weight=cosine",
         ] {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             let json = serde_json::to_string(&spec).unwrap();
@@ -1444,6 +1699,10 @@ mod tests {
             "dct:step=0.01,curve=linear,colour=none,weight=cosine,coding=zstd",
             "tucker:ranks=4x4x6,step=0.001",
             "tucker:ranks=8x8x12,step=0.05,curve=linear,colour=none",
+            "dct:step=0.3,residual=0.003",
+            "dct:step=0.3,coding=zstd,residual=0.003,weight=cosine",
+            "dct:step=0.05,curve=linear,colour=none,residual=0.01",
+            "tucker:ranks=2x2x3,step=0.3,residual=0.003",
         ] {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             assert_matches_reference(&t, &spec, s);
@@ -1457,7 +1716,7 @@ mod tests {
         #[test]
         fn random_tables_decode_like_the_reference(
             a in 2usize..9, b in 2usize..9, cc in 2usize..13, three in proptest::bool::ANY,
-            seed in proptest::prelude::any::<u64>(), which in 0usize..10,
+            seed in proptest::prelude::any::<u64>(), which in 0usize..12,
         ) {
             let g = parse_grid_spec(&format!("halfdiff3:{a}x{b}x{cc}")).unwrap();
             let valid = g.geometric_mask();
@@ -1476,6 +1735,7 @@ mod tests {
                 "f16:weight=cosine", "uniform:bits=14,weight=cosine",
                 "dct:step=0.003,weight=cosine",
                 "tucker:ranks=2x2x2,step=0.003", "tucker:ranks=2x2x2,step=0.1,factor=4",
+                "dct:step=0.3,residual=0.003", "tucker:ranks=1x1x1,step=0.3,residual=0.01",
             ][which];
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             assert_matches_reference(&t, &spec, s);
@@ -1506,6 +1766,221 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The largest error of a decoded table against its source, per channel in the curve
+    /// space y = curve(w·x) (the space `max_transformed_error` speaks of), relative to the
+    /// stated bound plus the decoder's f32 rounding: the plane value and the sum Mᵀz in f32,
+    /// `exp_f32` (1 ulp) and the f32 x, × 1/w in f32. Each is a few 2⁻²⁴ of |y| or of the
+    /// cell's ‖z‖; 5e-7 × (2 + |y| + ‖z‖) covers them with a margin of about 2. The clamp at
+    /// x ≥ 0 only moves a decoded y towards the true one (y ≥ ln ε, resp. ≥ 0), never away.
+    /// Returns the largest error / bound over valid cells (invalid cells must decode to 0).
+    fn residual_error_ratio(t: &Table, spec: &CodecSpec, what: &str) -> f64 {
+        let c = t.channels().len();
+        let bound = spec.max_transformed_error().unwrap();
+        let tr = spec.transform().unwrap();
+        let dec = spec
+            .decode(&spec.encode(t).unwrap(), &Layout::of(t))
+            .unwrap();
+        let curve_only = Transform {
+            colour: None,
+            ..tr.clone()
+        };
+        let ya = curve_only.forward_all(&dec, c, t.grid(), t.valid());
+        let yb = curve_only.forward_all(t.data(), c, t.grid(), t.valid());
+        let zb = tr.forward_all(t.data(), c, t.grid(), t.valid());
+        let mut worst = 0f64;
+        for (f, &ok) in t.valid().iter().enumerate() {
+            let cell = f * c..(f + 1) * c;
+            if !ok {
+                assert!(
+                    dec[cell].iter().all(|&v| v == 0.0),
+                    "{what}: invalid cell {f}"
+                );
+                continue;
+            }
+            let norm = zb[cell.clone()].iter().map(|v| v * v).sum::<f64>().sqrt();
+            for i in cell {
+                assert!(dec[i].is_finite() && dec[i] >= 0.0, "{what}: value {i}");
+                let err = (ya[i] - yb[i]).abs();
+                let tol = bound * (1.0 + 1e-12) + 5e-7 * (2.0 + yb[i].abs() + norm);
+                assert!(
+                    err <= tol,
+                    "{what}: value {i}: y {} decoded {} (error {err:e}, bound {bound:e})",
+                    yb[i],
+                    ya[i]
+                );
+                worst = worst.max(err / bound);
+            }
+        }
+        worst
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(32))]
+        /// Random tables (grid sizes, 1 or 3 channels, magnitudes over 8 decades, zeros),
+        /// random residual steps, every chain that takes a residual, both curves, with and
+        /// without colour and weight: every decoded valid value within the stated
+        /// `max_transformed_error` (Σ_i |M_ik| S/2 per channel, S/2 without colour) plus the
+        /// f32 rounding of [`residual_error_ratio`].
+        #[test]
+        fn residual_chains_meet_their_stated_bound_on_random_tables(
+            a in 2usize..9, b in 2usize..9, cc in 2usize..13, three in proptest::bool::ANY,
+            seed in proptest::prelude::any::<u64>(), which in 0usize..6,
+            log_s in -3.0f64..-0.5, lossy_step in 0.05f64..2.0,
+        ) {
+            let g = parse_grid_spec(&format!("halfdiff3:{a}x{b}x{cc}")).unwrap();
+            let valid = g.geometric_mask();
+            let c = if three { 3 } else { 1 };
+            let mut rng = crate::math::SplitMix64::new(seed);
+            let data: Vec<f32> = (0..g.cells() * c)
+                .map(|_| {
+                    let u = rng.next_f64();
+                    if u < 0.05 { 0.0 } else { (u * 18.0 - 9.0).exp() as f32 }
+                })
+                .collect();
+            let t = Table::new(g, Channels::default_for(c), Provenance::default(), data, valid)
+                .unwrap();
+            let s = 10f64.powf(log_s);
+            let req = [
+                format!("dct:step={lossy_step},residual={s}"),
+                format!("dct:step={lossy_step},coding=zstd,colour=none,residual={s}"),
+                format!("dct:step={lossy_step},weight=cosine,residual={s}"),
+                // Linear: values up to e^9 ≈ 8e3, the step scaled to that range.
+                format!("dct:step={},curve=linear,residual={}", lossy_step * 100.0, s * 10.0),
+                format!("tucker:ranks=2x1x2,step={lossy_step},residual={s}"),
+                format!("tucker:ranks=1x2x2,step={lossy_step},colour=none,curve=linear,residual={}", s * 10.0),
+            ][which].clone();
+            let spec = CodecRequest::parse(&req).unwrap().resolve(&t).unwrap();
+            residual_error_ratio(&t, &spec, &req);
+        }
+    }
+
+    /// The bound is tight, not vacuous: on a table with many cells the largest error comes
+    /// close to S/2 without colour (and to a good part of Σ|M_ik| S/2 with it), while the DCT
+    /// alone at that step is far outside it.
+    #[test]
+    fn residual_bound_is_reached_and_the_dct_alone_misses_it() {
+        let t = ggx_on("halfdiff3:12x10x16");
+        for (s, at_least) in [
+            ("dct:step=0.5,colour=none,residual=0.01", 0.9),
+            ("dct:step=0.5,residual=0.01", 0.5),
+            ("dct:step=0.5,coding=zstd,residual=0.002", 0.5),
+            ("tucker:ranks=3x3x3,step=0.5,residual=0.01", 0.5),
+        ] {
+            let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+            let r = residual_error_ratio(&t, &spec, s);
+            assert!(r >= at_least && r <= 1.0 + 1e-6, "{s}: error/bound {r}");
+        }
+        // Without the residual the same DCT is off by far more than S/2 = 0.005 somewhere.
+        let plain = CodecRequest::parse("dct:step=0.5")
+            .unwrap()
+            .resolve(&t)
+            .unwrap();
+        let dec = plain
+            .decode(&plain.encode(&t).unwrap(), &Layout::of(&t))
+            .unwrap();
+        let tr = plain.transform().unwrap();
+        let ya = tr.forward_all(&dec, 3, t.grid(), t.valid());
+        let yb = tr.forward_all(t.data(), 3, t.grid(), t.valid());
+        let worst = (0..t.grid().cells())
+            .filter(|&f| t.valid()[f])
+            .flat_map(|f| (0..3).map(move |k| f * 3 + k))
+            .map(|i| (ya[i] - yb[i]).abs())
+            .fold(0f64, f64::max);
+        assert!(worst > 0.05, "{worst}");
+    }
+
+    /// A residual file cut anywhere, with its section length or steps edited, or decoded with
+    /// the spec of the chain without the residual: an error, never a panic or a silent
+    /// partial decode.
+    #[test]
+    fn hostile_residual_payloads_and_headers_are_errors() {
+        let t = small_table();
+        let layout = Layout::of(&t);
+        for s in [
+            "dct:step=0.1,residual=0.01",
+            "dct:step=0.1,coding=zstd,residual=0.01",
+            "tucker:ranks=4x4x6,step=0.1,residual=0.01",
+        ] {
+            let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+            let payload = spec.encode(&t).unwrap();
+            let (lossy, section) = residual::split(&payload).unwrap();
+            assert!(!lossy.is_empty() && !section.is_empty(), "{s}");
+            let mut cuts: Vec<usize> = (0..12).collect();
+            cuts.extend([
+                8 + lossy.len() - 1,
+                8 + lossy.len(),
+                8 + lossy.len() + 1,
+                payload.len() / 2,
+                payload.len() - 1,
+            ]);
+            for cut in cuts {
+                let e = spec.decode(&payload[..cut], &layout);
+                assert!(e.is_err(), "{s}: cut {cut} of {}", payload.len());
+                assert!(reference::decode(&spec, &payload[..cut], &layout).is_err());
+            }
+            // The section length pointing past the end, or short by one byte.
+            for len in [u64::MAX, payload.len() as u64, lossy.len() as u64 - 1] {
+                let mut bad = payload.clone();
+                bad[..8].copy_from_slice(&len.to_le_bytes());
+                assert!(spec.decode(&bad, &layout).is_err(), "{s}: length {len}");
+            }
+            // Hostile residual stages in the header.
+            let edits: [fn(&mut residual::ResidualStage); 4] = [
+                |r| r.step = vec![0.01; 2],
+                |r| r.step[1] = f64::NAN,
+                |r| r.step[0] = -1.0,
+                |r| r.predict.orders = vec![0, 0],
+            ];
+            for (i, edit) in edits.iter().enumerate() {
+                let mut bad = spec.clone();
+                match &mut bad {
+                    CodecSpec::Dct {
+                        residual: Some(r), ..
+                    }
+                    | CodecSpec::DctContext {
+                        residual: Some(r), ..
+                    }
+                    | CodecSpec::Tucker {
+                        residual: Some(r), ..
+                    } => edit(r),
+                    _ => unreachable!(),
+                }
+                let e = bad.decode(&payload, &layout).unwrap_err().to_string();
+                assert!(e.contains("residual"), "{s} edit {i}: {e}");
+                assert!(bad.encode(&t).is_err(), "{s} edit {i}");
+            }
+            // The plain chain given a residual payload (or the reverse) fails too.
+            let mut plain = spec.clone();
+            match &mut plain {
+                CodecSpec::Dct { residual, .. }
+                | CodecSpec::DctContext { residual, .. }
+                | CodecSpec::Tucker { residual, .. } => *residual = None,
+                _ => unreachable!(),
+            }
+            assert!(
+                spec.decode(&plain.encode(&t).unwrap(), &layout).is_err(),
+                "{s}"
+            );
+        }
+        // A step too fine for the table: an error naming the step, not a wrap (at resolve,
+        // which tries the residual predictors, and at encode).
+        let req = CodecRequest::parse("dct:step=1,residual=1e-12").unwrap();
+        let e = req.resolve(&t).unwrap_err().to_string();
+        assert!(e.contains("residual step 1e-12 is too small"), "{e}");
+        let mut spec = CodecRequest::parse("dct:step=1,residual=1")
+            .unwrap()
+            .resolve(&t)
+            .unwrap();
+        if let CodecSpec::DctContext {
+            residual: Some(r), ..
+        } = &mut spec
+        {
+            r.step = vec![1e-12; 3];
+        }
+        let e = spec.encode(&t).unwrap_err().to_string();
+        assert!(e.contains("residual step 1e-12 is too small"), "{e}");
     }
 
     /// A GGX conductor (grazing Fresnel peaks) on `grid`, 3 channels.
@@ -1675,6 +2150,7 @@ mod tests {
             "uniform:bits=16,weight=cosine",
             "dct:step=0.01,weight=cosine",
             "dct:step=0.01,weight=cosine,coding=zstd",
+            "dct:step=0.01,weight=cosine,residual=0.001",
         ] {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             let layout = Layout::of(&t);
@@ -1740,6 +2216,16 @@ mod tests {
             ("tucker:ranks=8x8x8,step=0", "step"),
             ("tucker:ranks=8x8x8,factor=1e9", "factor"),
             ("tucker:ranks=8x8x8,deadzone=1", "deadzone"),
+            (
+                "dct:step=0.1,residual=0",
+                "residual = \"0\", expected a positive step",
+            ),
+            ("dct:step=0.1,residual=inf", "residual"),
+            (
+                "uniform:bits=8,residual=0.1",
+                "residual=0.1 applies to dct and tucker only",
+            ),
+            ("lossless:residual=0.1", "applies to dct and tucker only"),
         ] {
             let e = CodecRequest::parse(s).unwrap_err().to_string();
             assert!(e.contains(want), "{s}: {e}");

@@ -59,8 +59,30 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
             }
             Ok(out)
         }
+        CodecSpec::Dct { transform, .. }
+        | CodecSpec::DctContext { transform, .. }
+        | CodecSpec::Tucker { transform, .. } => {
+            let planes = match spec.residual() {
+                None => lossy_planes(spec, payload, layout)?,
+                Some(res) => {
+                    let (lossy, section) = super::residual::split(payload)?;
+                    let mut planes = lossy_planes(spec, lossy, layout)?;
+                    res.add(section, &mut planes, &layout.shape(&dims))?;
+                    planes
+                }
+            };
+            Ok(inverse_planes(transform, &planes, layout, c))
+        }
+    }
+}
+
+/// The component planes of the lossy section of a DCT or Tucker chain, by the old expansions.
+fn lossy_planes(spec: &CodecSpec, lossy: &[u8], layout: &Layout) -> Result<Vec<Vec<f32>>> {
+    let values = layout.values()?;
+    let c = layout.channels;
+    let dims = layout.dims();
+    match spec {
         CodecSpec::Dct {
-            transform,
             dct: stage,
             entropy,
             ..
@@ -69,37 +91,30 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                 .checked_mul(5)
                 .and_then(|v| v.checked_add(10 * c * dims.len() + 16))
                 .ok_or_else(|| Error::input("table too large"))?;
-            let raw = entropy.decompress_capped(payload, cap)?;
+            let raw = entropy.decompress_capped(lossy, cap)?;
             let comps = dct::deserialize(&raw, &dims, c)?;
-            let planes: Vec<Vec<f32>> = comps
+            Ok(comps
                 .iter()
                 .zip(&stage.step)
                 .map(|(q, &s)| dct_inverse(q, &dims, s))
-                .collect();
-            Ok(inverse_planes(transform, &planes, layout, c))
+                .collect())
         }
-        CodecSpec::DctContext {
-            transform,
-            dct: stage,
-            ..
-        } => {
-            let comps = super::coefcode::decode(payload, &dims, c)?;
-            let planes: Vec<Vec<f32>> = comps
+        CodecSpec::DctContext { dct: stage, .. } => {
+            let comps = super::coefcode::decode(lossy, &dims, c)?;
+            Ok(comps
                 .iter()
                 .zip(&stage.step)
                 .map(|(q, &s)| dct_inverse(q, &dims, s))
-                .collect();
-            Ok(inverse_planes(transform, &planes, layout, c))
+                .collect())
         }
         CodecSpec::Tucker {
-            transform,
             tucker: stage,
             entropy,
             ..
         } => {
             // The f64 reference of the f32 expansion, rounded to f32 once at the end.
-            let comps = super::tucker_components(payload, &dims, stage, entropy)?;
-            let planes: Vec<Vec<f32>> = comps
+            let comps = super::tucker_components(lossy, &dims, stage, entropy)?;
+            Ok(comps
                 .iter()
                 .zip(&stage.step)
                 .map(|(q, &s)| {
@@ -108,9 +123,11 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                         .map(|&v| v as f32)
                         .collect()
                 })
-                .collect();
-            Ok(inverse_planes(transform, &planes, layout, c))
+                .collect())
         }
+        _ => Err(Error::Failure(
+            "reference: only DCT and Tucker chains have lossy planes".into(),
+        )),
     }
 }
 

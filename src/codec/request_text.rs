@@ -1,9 +1,10 @@
 //! The text form of a [`CodecRequest`]: `Display` writes the canonical spec that
 //! [`CodecRequest::parse`] reads back to the same request (every option spelled out, numbers
 //! in Rust's shortest round-trip notation), e.g.
-//! `dct:step=0.02,curve=log,eps=0.001,colour=klt,coding=zstd,level=19`. The one exception to
-//! "every option": `weight` is written only when set (`,weight=cosine`), so that the canonical
-//! text of every unweighted request is what it was before weights existed.
+//! `dct:step=0.02,curve=log,eps=0.001,colour=klt,coding=zstd,level=19`. The exceptions to
+//! "every option": `weight` and `residual` are written only when set (`,weight=cosine`;
+//! `,residual=0.01` last), so that the canonical text of every request without them is what it
+//! was before they existed.
 
 use super::predict::{Predictor, Space};
 use super::transform::Weight;
@@ -67,6 +68,13 @@ fn weight(f: &mut fmt::Formatter, w: &Option<Weight>) -> fmt::Result {
     }
 }
 
+fn residual(f: &mut fmt::Formatter, r: &Option<f64>) -> fmt::Result {
+    match r {
+        None => Ok(()),
+        Some(s) => write!(f, ",residual={s:?}"),
+    }
+}
+
 fn colour(colour: bool) -> &'static str {
     if colour { "klt" } else { "none" }
 }
@@ -126,17 +134,19 @@ impl fmt::Display for CodecRequest {
                 step,
                 colour: k,
                 coding,
+                residual: r,
             } => {
                 write!(f, "dct:step={step:?},")?;
                 curve(f, c)?;
                 write!(f, ",colour={}", colour(*k))?;
                 weight(f, w)?;
                 match coding {
-                    DctCoding::Zstd { level } => write!(f, ",coding=zstd,level={level}"),
+                    DctCoding::Zstd { level } => write!(f, ",coding=zstd,level={level}")?,
                     DctCoding::Context { deadzone, refine } => {
-                        write!(f, ",coding=context,deadzone={deadzone:?},refine={refine}")
+                        write!(f, ",coding=context,deadzone={deadzone:?},refine={refine}")?
                     }
                 }
+                residual(f, r)
             }
             CodecRequest::Tucker {
                 curve: c,
@@ -146,6 +156,7 @@ impl fmt::Display for CodecRequest {
                 factor_step,
                 colour: k,
                 level,
+                residual: r,
             } => {
                 let ranks: Vec<String> = ranks.iter().map(usize::to_string).collect();
                 write!(
@@ -156,7 +167,8 @@ impl fmt::Display for CodecRequest {
                 curve(f, c)?;
                 write!(f, ",colour={}", colour(*k))?;
                 weight(f, w)?;
-                write!(f, ",level={level}")
+                write!(f, ",level={level}")?;
+                residual(f, r)
             }
         }
     }
@@ -211,6 +223,18 @@ mod tests {
             (
                 "tucker: ranks = 2x3x4x5 ,step=0.1,factor=2,curve=linear,colour=none,level=3",
                 "tucker:ranks=2x3x4x5,step=0.1,factor=2.0,curve=linear,colour=none,level=3",
+            ),
+            (
+                "dct:residual=1e-2,step=0.3",
+                "dct:step=0.3,curve=log,eps=0.001,colour=klt,coding=context,deadzone=0.75,refine=0,residual=0.01",
+            ),
+            (
+                "dct:step=0.3,coding=zstd,level=5,residual=0.02,weight=cos",
+                "dct:step=0.3,curve=log,eps=0.001,colour=klt,weight=cosine,coding=zstd,level=5,residual=0.02",
+            ),
+            (
+                "tucker:ranks=8x8x16,residual=0.005",
+                "tucker:ranks=8x8x16,step=0.05,factor=1.0,curve=log,eps=0.001,colour=klt,level=19,residual=0.005",
             ),
         ] {
             let r = CodecRequest::parse(spec).unwrap();

@@ -447,6 +447,7 @@ fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Re
                 step: vec![step; c],
             },
             coding: ContextCoding { deadzone },
+            residual: None,
         };
     // Phase 1.
     let mut best_context: Option<(usize, f64, usize)> = None;
@@ -486,6 +487,7 @@ fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Re
                     step: vec![step; c],
                 },
                 entropy,
+                residual: None,
             };
             let comps: Vec<_> = e
                 .coefs
