@@ -446,18 +446,7 @@ fn figures_residual() {
             if let Some(res) = spec.residual() {
                 let section = |orders: Vec<u8>| {
                     let mut s2 = spec.clone();
-                    match &mut s2 {
-                        CodecSpec::Dct {
-                            residual: Some(r), ..
-                        }
-                        | CodecSpec::DctContext {
-                            residual: Some(r), ..
-                        }
-                        | CodecSpec::Tucker {
-                            residual: Some(r), ..
-                        } => r.predict.orders = orders,
-                        _ => unreachable!(),
-                    }
+                    s2.residual_mut().expect("a residual spec").predict.orders = orders;
                     s2.encode(t).unwrap().len()
                 };
                 let d = res.predict.orders.len();

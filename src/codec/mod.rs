@@ -203,6 +203,16 @@ impl CodecSpec {
         }
     }
 
+    /// The residual stage, mutable (tests and figures edit its fields).
+    pub fn residual_mut(&mut self) -> Option<&mut residual::ResidualStage> {
+        match self {
+            CodecSpec::Dct { residual, .. }
+            | CodecSpec::DctContext { residual, .. }
+            | CodecSpec::Tucker { residual, .. } => residual.as_mut(),
+            _ => None,
+        }
+    }
+
     /// The transform stage of the lossy chains.
     pub fn transform(&self) -> Option<&Transform> {
         match self {
@@ -1709,6 +1719,33 @@ mod tests {
         }
     }
 
+    /// A random `halfdiff3:a×b×cc` table (1 or 3 channels): 5% zeros, the rest spread over
+    /// 18 e-folds, below-horizon cells invalid.
+    fn random_table(a: usize, b: usize, cc: usize, three: bool, seed: u64) -> Table {
+        let g = parse_grid_spec(&format!("halfdiff3:{a}x{b}x{cc}")).unwrap();
+        let valid = g.geometric_mask();
+        let c = if three { 3 } else { 1 };
+        let mut rng = crate::math::SplitMix64::new(seed);
+        let data: Vec<f32> = (0..g.cells() * c)
+            .map(|_| {
+                let u = rng.next_f64();
+                if u < 0.05 {
+                    0.0
+                } else {
+                    (u * 18.0 - 9.0).exp() as f32
+                }
+            })
+            .collect();
+        Table::new(
+            g,
+            Channels::default_for(c),
+            Provenance::default(),
+            data,
+            valid,
+        )
+        .unwrap()
+    }
+
     proptest::proptest! {
         #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
         /// Random tables (grid sizes, 1 or 3 channels, magnitudes over 8 decades, zeros):
@@ -1718,18 +1755,7 @@ mod tests {
             a in 2usize..9, b in 2usize..9, cc in 2usize..13, three in proptest::bool::ANY,
             seed in proptest::prelude::any::<u64>(), which in 0usize..12,
         ) {
-            let g = parse_grid_spec(&format!("halfdiff3:{a}x{b}x{cc}")).unwrap();
-            let valid = g.geometric_mask();
-            let c = if three { 3 } else { 1 };
-            let mut rng = crate::math::SplitMix64::new(seed);
-            let data: Vec<f32> = (0..g.cells() * c)
-                .map(|_| {
-                    let u = rng.next_f64();
-                    if u < 0.05 { 0.0 } else { (u * 18.0 - 9.0).exp() as f32 }
-                })
-                .collect();
-            let t = Table::new(g, Channels::default_for(c), Provenance::default(), data, valid)
-                .unwrap();
+            let t = random_table(a, b, cc, three, seed);
             let s = [
                 "lossless", "f16", "uniform:bits=14", "dct:step=0.003", "dct:step=0.1",
                 "f16:weight=cosine", "uniform:bits=14,weight=cosine",
@@ -1829,18 +1855,7 @@ mod tests {
             seed in proptest::prelude::any::<u64>(), which in 0usize..6,
             log_s in -3.0f64..-0.5, lossy_step in 0.05f64..2.0,
         ) {
-            let g = parse_grid_spec(&format!("halfdiff3:{a}x{b}x{cc}")).unwrap();
-            let valid = g.geometric_mask();
-            let c = if three { 3 } else { 1 };
-            let mut rng = crate::math::SplitMix64::new(seed);
-            let data: Vec<f32> = (0..g.cells() * c)
-                .map(|_| {
-                    let u = rng.next_f64();
-                    if u < 0.05 { 0.0 } else { (u * 18.0 - 9.0).exp() as f32 }
-                })
-                .collect();
-            let t = Table::new(g, Channels::default_for(c), Provenance::default(), data, valid)
-                .unwrap();
+            let t = random_table(a, b, cc, three, seed);
             let s = 10f64.powf(log_s);
             let req = [
                 format!("dct:step={lossy_step},residual={s}"),
@@ -1935,18 +1950,7 @@ mod tests {
             ];
             for (i, edit) in edits.iter().enumerate() {
                 let mut bad = spec.clone();
-                match &mut bad {
-                    CodecSpec::Dct {
-                        residual: Some(r), ..
-                    }
-                    | CodecSpec::DctContext {
-                        residual: Some(r), ..
-                    }
-                    | CodecSpec::Tucker {
-                        residual: Some(r), ..
-                    } => edit(r),
-                    _ => unreachable!(),
-                }
+                edit(bad.residual_mut().expect("a residual spec"));
                 let e = bad.decode(&payload, &layout).unwrap_err().to_string();
                 assert!(e.contains("residual"), "{s} edit {i}: {e}");
                 assert!(bad.encode(&t).is_err(), "{s} edit {i}");
