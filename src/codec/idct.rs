@@ -633,15 +633,19 @@ fn strided_tile<const T: usize>(
         accumulate_two::<T>(&mut to, s, inner, x0, odd, w);
         for p in 0..2 {
             let jj = j + p;
+            // Through fixed-size slices: indexing `d[lo + l]` left one bounds check per
+            // lane in the loop, and the stores scalar.
             let lo = jj * dstride + dx;
+            let dl: &mut [f32; T] = (&mut d[lo..lo + T]).try_into().expect("a tile");
             for l in 0..T {
-                d[lo + l] = te[p][l] + to[p][l];
+                dl[l] = te[p][l] + to[p][l];
             }
             let m = b.n - 1 - jj;
             if m != jj {
                 let hi = m * dstride + dx;
+                let dh: &mut [f32; T] = (&mut d[hi..hi + T]).try_into().expect("a tile");
                 for l in 0..T {
-                    d[hi + l] = te[p][l] - to[p][l];
+                    dh[l] = te[p][l] - to[p][l];
                 }
             }
         }
@@ -669,14 +673,16 @@ fn strided_tile<const T: usize>(
             }
         }
         let lo = j * dstride + dx;
+        let dl: &mut [f32; T] = (&mut d[lo..lo + T]).try_into().expect("a tile");
         for l in 0..T {
-            d[lo + l] = te[l] + to[l];
+            dl[l] = te[l] + to[l];
         }
         let m = b.n - 1 - j;
         if m != j {
             let hi = m * dstride + dx;
+            let dh: &mut [f32; T] = (&mut d[hi..hi + T]).try_into().expect("a tile");
             for l in 0..T {
-                d[hi + l] = te[l] - to[l];
+                dh[l] = te[l] - to[l];
             }
         }
     }

@@ -218,6 +218,16 @@ impl Finisher {
             // SAFETY: `avx2` is set only when the CPU reports AVX2.
             unsafe { self.blocks_avx2::<C>(&mm, &ee, planes, &valid[..full], out) };
             f0 = full;
+            if full < cells {
+                // The tail as one block overlapping the last whole one (a MERL line of 180
+                // cells ends in 4): the overlapped cells are written again with the same
+                // bits, since every cell is finished on its own.
+                let t0 = cells - LANES;
+                let tail: [&[f32]; C] = std::array::from_fn(|k| &planes[k][t0..]);
+                // SAFETY: as above.
+                unsafe { self.blocks_avx2::<C>(&mm, &ee, tail, &valid[t0..], &mut out[t0 * C..]) };
+                return;
+            }
         }
         while f0 < full {
             let ok: &[bool; LANES] = valid[f0..f0 + LANES]
