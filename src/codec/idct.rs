@@ -494,33 +494,25 @@ fn contiguous_line(
         let mut to = [0f32; TILE_N];
         // Even and odd rows side by side: four independent sums instead of two (the adds are
         // latency-bound), each still in row order, so the same bits.
+        let row = |k: usize| -> &[f32; TILE_N] {
+            b.rows[k * hp + t0..k * hp + t0 + TILE_N]
+                .try_into()
+                .expect("tile inside the padded row")
+        };
         let both = even.len().min(odd.len());
         for (&(ke, we), &(ko, wo)) in even[..both].iter().zip(&odd[..both]) {
-            let re: &[f32; TILE_N] = b.rows[ke * hp + t0..ke * hp + t0 + TILE_N]
-                .try_into()
-                .expect("tile inside the padded row");
-            let ro: &[f32; TILE_N] = b.rows[ko * hp + t0..ko * hp + t0 + TILE_N]
-                .try_into()
-                .expect("tile inside the padded row");
+            let (re, ro) = (row(ke), row(ko));
             for l in 0..TILE_N {
                 te[l] += we * re[l];
                 to[l] += wo * ro[l];
             }
         }
-        for &(k, w) in even[both..].iter() {
-            let row: &[f32; TILE_N] = b.rows[k * hp + t0..k * hp + t0 + TILE_N]
-                .try_into()
-                .expect("tile inside the padded row");
-            for l in 0..TILE_N {
-                te[l] += w * row[l];
-            }
-        }
-        for &(k, w) in odd[both..].iter() {
-            let row: &[f32; TILE_N] = b.rows[k * hp + t0..k * hp + t0 + TILE_N]
-                .try_into()
-                .expect("tile inside the padded row");
-            for l in 0..TILE_N {
-                to[l] += w * row[l];
+        for (acc, rest) in [(&mut te, &even[both..]), (&mut to, &odd[both..])] {
+            for &(k, w) in rest {
+                let r = row(k);
+                for l in 0..TILE_N {
+                    acc[l] += w * r[l];
+                }
             }
         }
         ev[t0..t0 + TILE_N].copy_from_slice(&te);

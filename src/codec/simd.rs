@@ -58,6 +58,9 @@ const EXP_MAGIC: f32 = 12_582_912.0;
 /// ln2 split so that n·LN2_HI is exact for |n| ≤ 128 (LN2_HI has 9 significant bits).
 const EXP_LN2_HI: f32 = 0.693_359_4;
 const EXP_LN2_LO: f32 = -2.121_944_4e-4;
+/// Below EXP_MIN: e^x = e^(x + EXP_SMALL_SHIFT) · EXP_SMALL_SCALE (32 ln2 and 2^−32).
+const EXP_SMALL_SHIFT: f32 = 32.0 * std::f32::consts::LN_2;
+const EXP_SMALL_SCALE: f32 = 2.328_306_4e-10;
 /// The Cephes `expf` polynomial, highest degree first (Cephes 5.0000001201e-1 rounds to 0.5
 /// in f32).
 const EXP_POLY: [f32; 6] = [
@@ -74,35 +77,27 @@ const EXP_POLY: [f32; 6] = [
 /// the degree-6 minimax polynomial of Cephes `expf` (Moshier 1992), without FMA.
 #[inline(always)]
 pub fn exp_f32(x: f32) -> f32 {
-    const LOG2E: f32 = std::f32::consts::LOG2_E;
-    const MAGIC: f32 = EXP_MAGIC;
-    const LN2_HI: f32 = EXP_LN2_HI;
-    const LN2_LO: f32 = EXP_LN2_LO;
     // Below EXP_MIN the result is an f32 subnormal (down to e^−103.3): e^x = e^(x + 32 ln2)·2^−32,
     // one rounding. Flushing to e^−87 instead decoded a 1e−41 sample of a dark log-curve table
     // 1e3× too large (tests/hard_cases.rs).
     let small = x < EXP_MIN;
-    let x = if small {
-        x + 32.0 * std::f32::consts::LN_2
-    } else {
-        x
-    };
-    let scale = if small { 2.328_306_4e-10 } else { 1.0 }; // 2^−32
+    let x = if small { x + EXP_SMALL_SHIFT } else { x };
+    let scale = if small { EXP_SMALL_SCALE } else { 1.0 };
     // Written as the selects that `vmaxps`/`vminps` perform (the second operand when the
     // comparison fails, so NaN reads as EXP_MIN), so the AVX2 finisher gives the same bits.
     let x = if x > EXP_MIN { x } else { EXP_MIN };
     let x = if x < EXP_MAX { x } else { EXP_MAX };
-    let t = x * LOG2E + MAGIC;
-    let n = t - MAGIC;
-    let r = x - n * LN2_HI;
-    let r = r - n * LN2_LO;
+    let t = x * std::f32::consts::LOG2_E + EXP_MAGIC;
+    let n = t - EXP_MAGIC;
+    let r = x - n * EXP_LN2_HI;
+    let r = r - n * EXP_LN2_LO;
     let mut p = EXP_POLY[0];
     for &k in &EXP_POLY[1..] {
         p = p * r + k;
     }
     let y = p * (r * r) + r + 1.0;
     // 2^n from the integer in t's mantissa: n ∈ [−126, 127] here, a normal exponent.
-    let e = (t.to_bits() as i32 - MAGIC.to_bits() as i32 + 127) << 23;
+    let e = (t.to_bits() as i32 - EXP_MAGIC.to_bits() as i32 + 127) << 23;
     y * f32::from_bits(e as u32) * scale
 }
 
@@ -114,8 +109,8 @@ fn exp_avx2(x: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
     use std::arch::x86_64::*;
     let c = _mm256_set1_ps;
     let small = _mm256_cmp_ps::<_CMP_LT_OQ>(x, c(EXP_MIN));
-    let x = _mm256_blendv_ps(x, _mm256_add_ps(x, c(32.0 * std::f32::consts::LN_2)), small);
-    let scale = _mm256_blendv_ps(c(1.0), c(2.328_306_4e-10), small);
+    let x = _mm256_blendv_ps(x, _mm256_add_ps(x, c(EXP_SMALL_SHIFT)), small);
+    let scale = _mm256_blendv_ps(c(1.0), c(EXP_SMALL_SCALE), small);
     let x = _mm256_min_ps(_mm256_max_ps(x, c(EXP_MIN)), c(EXP_MAX));
     let t = _mm256_add_ps(_mm256_mul_ps(x, c(std::f32::consts::LOG2_E)), c(EXP_MAGIC));
     let n = _mm256_sub_ps(t, c(EXP_MAGIC));
