@@ -229,6 +229,22 @@ pub fn evaluate_pairs(
     Ok((f, g))
 }
 
+/// The values of one BRDF at every pair of `set` (pair-major), the `f` or `g` of
+/// [`evaluate_pairs`] alone: the codec search scores each candidate against reference values
+/// it computed once.
+pub fn evaluate_set(brdf: &dyn Brdf, set: &SampleSet) -> Vec<f64> {
+    let c = brdf.channels().len();
+    let mut f = vec![0.0; set.pairs.len() * c];
+    const CHUNK: usize = 1024;
+    f.par_chunks_mut(CHUNK * c).enumerate().for_each(|(k, fc)| {
+        let pairs = &set.pairs[k * CHUNK..(k * CHUNK + fc.len() / c)];
+        for (j, &(wi, wo)) in pairs.iter().enumerate() {
+            brdf.eval(wi, wo, &mut fc[j * c..(j + 1) * c]);
+        }
+    });
+    f
+}
+
 /// Computes the metrics of `g` against `f` over `set` (pair-major, `c` channels).
 /// `channel`: `Some(k)` for one channel, `None` for all pooled.
 pub fn metrics(set: &SampleSet, f: &[f64], g: &[f64], c: usize, channel: Option<usize>) -> Metrics {

@@ -254,9 +254,36 @@ impl Table {
         mask: &M,
         out: &mut [f64],
     ) {
+        let c = self.channels.len();
+        let (wsum, tcont) = self.corners_masked(t_in, interp, layout, mask, |flat, w| {
+            for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
+                *o += w * v as f64;
+            }
+        });
+        if wsum > 0.0 && wsum != 1.0 {
+            // Some neighbours were invalid: the rest carry the whole weight.
+            for o in out.iter_mut() {
+                *o /= wsum;
+            }
+        } else if wsum == 0.0 {
+            self.hold_nearest_valid(&tcont[..layout.d], &layout.strides[..layout.d], out);
+        }
+    }
+
+    /// The valid neighbours of continuous indices `t_in` with nonzero weight, in corner order,
+    /// each handed to `visit(flat, weight)`; returns the weight sum and the split's continuous
+    /// indices (for the nearest-valid fallback).
+    #[inline(always)]
+    fn corners_masked<M: CellMask + ?Sized>(
+        &self,
+        t_in: &[f64; 4],
+        interp: Interp,
+        layout: &Layout,
+        mask: &M,
+        mut visit: impl FnMut(usize, f64),
+    ) -> (f64, [f64; 4]) {
         let d = layout.d;
         let strides = &layout.strides;
-        let c = self.channels.len();
         let nearest = interp == Interp::Nearest;
         // Per axis: two neighbour indices and the weight of the upper one.
         let mut lo = [0usize; 4];
@@ -288,18 +315,68 @@ impl Table {
                 continue;
             }
             wsum += w;
-            for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
-                *o += w * v as f64;
-            }
+            visit(flat, w);
         }
-        if wsum > 0.0 && wsum != 1.0 {
-            // Some neighbours were invalid: the rest carry the whole weight.
-            for o in out.iter_mut() {
-                *o /= wsum;
-            }
-        } else if wsum == 0.0 {
-            self.hold_nearest_valid(&tcont[..d], &strides[..d], out);
+        (wsum, tcont)
+    }
+
+    /// The interpolation stencil of every pair of `pairs`: which cells [`Table::eval_into`]
+    /// reads, with which weights, and what it does after the sum. [`Stencil::apply`] then
+    /// gives eval_into's values, bit for bit, for any data on the same grid and validity. The
+    /// codec search scores dozens of candidate tables on the same sample set; the geometry
+    /// (directions → grid coordinates, atan2 and all) is worked out once here.
+    pub fn stencil(&self, pairs: &[(Vec3, Vec3)], interp: Interp) -> Stencil {
+        use rayon::prelude::*;
+        const CHUNK: usize = 4096;
+        let layout = Layout::new(&self.grid);
+        let axes = self.grid.axes();
+        let parts: Vec<Stencil> = pairs
+            .par_chunks(CHUNK)
+            .map(|pairs| {
+                let mut st = Stencil::default();
+                for &(wi, wo) in pairs {
+                    let mut after = After::None;
+                    if self.grid.in_domain(wi, wo)
+                        && let Some(coords) = self.grid.coords_of(wi, wo)
+                    {
+                        let mut t = [0f64; 4];
+                        for (tk, (a, &x)) in t.iter_mut().zip(axes.iter().zip(&coords)) {
+                            *tk = a.continuous_index(x);
+                        }
+                        let (wsum, tcont) =
+                            self.corners_masked(&t, interp, &layout, &self.valid[..], |flat, w| {
+                                st.cells.push(flat);
+                                st.weights.push(w);
+                            });
+                        if wsum > 0.0 && wsum != 1.0 {
+                            after = After::Divide(wsum);
+                        } else if wsum == 0.0 {
+                            let d = layout.d;
+                            after = match self.nearest_valid(&tcont[..d], &layout.strides[..d]) {
+                                Some(f) => After::Hold(f),
+                                None => After::None,
+                            };
+                        }
+                    }
+                    st.ends.push(st.cells.len());
+                    st.after.push(after);
+                }
+                st
+            })
+            .collect();
+        let mut st = Stencil {
+            channels: self.channels.len(),
+            cells_in_grid: self.grid.cells(),
+            ..Default::default()
+        };
+        for p in parts {
+            let base = st.cells.len();
+            st.ends.extend(p.ends.iter().map(|e| e + base));
+            st.cells.extend(p.cells);
+            st.weights.extend(p.weights);
+            st.after.extend(p.after);
         }
+        st
     }
 
     /// The query is above the horizon but every neighbouring sample is below it (a thin
@@ -923,6 +1000,86 @@ impl AxisSplit {
     }
 }
 
+/// What [`Table::eval_into`] does after summing a pair's weighted neighbours.
+#[derive(Clone, Copy, Debug)]
+enum After {
+    None,
+    /// Some neighbours were invalid: divide by the weight of the others.
+    Divide(f64),
+    /// Every neighbour was invalid: hold this cell's value.
+    Hold(usize),
+}
+
+/// The interpolation stencils of a list of direction pairs on one grid and validity
+/// ([`Table::stencil`]).
+#[derive(Clone, Debug, Default)]
+pub struct Stencil {
+    channels: usize,
+    cells_in_grid: usize,
+    /// Pair p's neighbours are `cells[ends[p-1]..ends[p]]`, with `weights` alongside.
+    ends: Vec<usize>,
+    cells: Vec<usize>,
+    weights: Vec<f64>,
+    after: Vec<After>,
+}
+
+impl Stencil {
+    /// Pairs covered.
+    pub fn len(&self) -> usize {
+        self.ends.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.ends.is_empty()
+    }
+
+    /// The values of a table with these stencils' grid, validity and channel count holding
+    /// `data` (cell-major): `out[p·C + ch]`, bit-identical to [`Table::eval_into`].
+    ///
+    /// # Panics
+    /// When `data` or `out` has the wrong length (a caller bug).
+    pub fn apply(&self, data: &[f32], out: &mut [f64]) {
+        use rayon::prelude::*;
+        let c = self.channels;
+        assert_eq!(
+            data.len(),
+            self.cells_in_grid * c,
+            "Stencil::apply: data length"
+        );
+        assert_eq!(out.len(), self.len() * c, "Stencil::apply: output length");
+        const CHUNK: usize = 4096;
+        out.par_chunks_mut(CHUNK * c)
+            .enumerate()
+            .for_each(|(k, out)| {
+                for (j, o) in out.chunks_exact_mut(c).enumerate() {
+                    let p = k * CHUNK + j;
+                    let start = if p == 0 { 0 } else { self.ends[p - 1] };
+                    let end = self.ends[p];
+                    o.fill(0.0);
+                    for (&flat, &w) in self.cells[start..end].iter().zip(&self.weights[start..end])
+                    {
+                        for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
+                            *o += w * v as f64;
+                        }
+                    }
+                    match self.after[p] {
+                        After::None => {}
+                        After::Divide(wsum) => {
+                            for o in o.iter_mut() {
+                                *o /= wsum;
+                            }
+                        }
+                        After::Hold(flat) => {
+                            for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
+                                *o = v as f64;
+                            }
+                        }
+                    }
+                }
+            });
+    }
+}
+
 /// Per-axis constants of interpolation on a grid: the split rules and the flat strides.
 #[derive(Clone, Copy, Debug)]
 struct Layout {
@@ -1398,6 +1555,15 @@ mod tests {
                 with_holes(&smooth, "halfdiff4:12x8x12x16"),
                 "halfdiff4 with invalid cells",
             ),
+            (
+                tabulate(
+                    &ggx,
+                    &parse_grid_spec("spherical3:8,theta-max=60").unwrap(),
+                    &TabulateOptions::default(),
+                )
+                .unwrap(),
+                "spherical3 θ ≤ 60°",
+            ),
         ];
         for (t, what) in &cases {
             let pairs = lookup_test_pairs(t.grid());
@@ -1422,7 +1588,32 @@ mod tests {
                          {o:e} (one thread)"
                     );
                 }
+                // The stencils give eval_into's bits, on the table's data and on other data.
+                let stencil = t.stencil(&pairs, interp);
+                let scaled: Vec<f32> = t.data().iter().map(|v| v * 0.7 + 0.1).collect();
+                let mut via_stencil = vec![f64::NAN; pairs.len() * c];
                 let mut one = vec![0.0; c];
+                for data in [t.data(), &scaled[..]] {
+                    stencil.apply(data, &mut via_stencil);
+                    let other = Table::new(
+                        t.grid().clone(),
+                        t.channels().clone(),
+                        t.provenance().clone(),
+                        data.to_vec(),
+                        t.valid().to_vec(),
+                    )
+                    .unwrap();
+                    for (p, &(wi, wo)) in pairs.iter().enumerate() {
+                        other.eval_into(wi, wo, interp, &mut one);
+                        for ch in 0..c {
+                            let (a, b) = (via_stencil[p * c + ch], one[ch]);
+                            assert!(
+                                a.to_bits() == b.to_bits(),
+                                "{what} {interp:?} pair {p}: stencil {a:e} vs eval_into {b:e}"
+                            );
+                        }
+                    }
+                }
                 let mut worst: f64 = 0.0;
                 for (p, &(wi, wo)) in pairs.iter().enumerate() {
                     t.eval_into(wi, wo, interp, &mut one);

@@ -19,8 +19,8 @@ use super::entropy::Zstd;
 use super::transform::Transform;
 use super::{CodecRequest, CodecSpec, CurveRequest, Layout, dct, dct_coefficients, transform_for};
 use crate::brdf::Brdf;
-use crate::check::{BOUNDABLE, Metrics, SampleSet, evaluate_pairs, metrics};
-use crate::table::{Interp, InterpolatedTable, Table};
+use crate::check::{BOUNDABLE, Metrics, SampleSet, evaluate_set, metrics};
+use crate::table::{Interp, InterpolatedTable, Stencil, Table};
 use crate::{Error, Result};
 
 /// Upper bounds on metrics of `spec/metrics.md`, all on the same sample set.
@@ -99,10 +99,12 @@ pub struct Measured {
 }
 
 /// A sample set with its reference values (the uncompressed table or the source at its
-/// pairs).
+/// pairs) and the table's interpolation stencil at its pairs (every candidate shares the
+/// table's grid and validity).
 struct Scored<'a> {
     set: &'a SampleSet,
     reference: Vec<f64>,
+    stencil: Stencil,
 }
 
 /// Encodes, decodes and measures one spec.
@@ -117,10 +119,6 @@ fn linear(table: &Table) -> InterpolatedTable {
         table: table.clone(),
         interp: Interp::Linear,
     }
-}
-
-fn reference(r: &dyn Brdf, set: &SampleSet) -> Result<Vec<f64>> {
-    Ok(evaluate_pairs(r, r, set)?.0)
 }
 
 impl<'a> Evaluator<'a> {
@@ -154,69 +152,53 @@ impl<'a> Evaluator<'a> {
                 table.channels().len()
             )));
         }
+        let scored = |set: &'a SampleSet| Scored {
+            set,
+            reference: evaluate_set(reference_brdf, set),
+            stencil: table.stencil(&set.pairs, Interp::Linear),
+        };
         Ok(Evaluator {
             table,
-            main: Scored {
-                set,
-                reference: reference(reference_brdf, set)?,
-            },
-            held: held
-                .map(|h| {
-                    Ok::<_, Error>(Scored {
-                        set: h,
-                        reference: reference(reference_brdf, h)?,
-                    })
-                })
-                .transpose()?,
+            main: scored(set),
+            held: held.map(scored),
         })
     }
 
     /// Metrics of the uncompressed table itself (linear interpolation) against the reference:
     /// the floor no encoding of it goes below, up to chance.
     pub fn measure_uncompressed(&self) -> Result<(Metrics, Option<Metrics>)> {
-        let cand = linear(self.table);
+        let cand = self.table;
         Ok((
-            self.score(&cand, &self.main)?,
-            self.held
-                .as_ref()
-                .map(|h| self.score(&cand, h))
-                .transpose()?,
+            self.score(cand, &self.main),
+            self.held.as_ref().map(|h| self.score(cand, h)),
         ))
     }
 
-    fn score(&self, cand: &InterpolatedTable, s: &Scored) -> Result<Metrics> {
-        let (_, g) = evaluate_pairs(cand, cand, s.set)?;
-        Ok(metrics(
-            s.set,
-            &s.reference,
-            &g,
-            self.table.channels().len(),
-            None,
-        ))
+    /// Metrics of `cand` (a table on the evaluator's grid and validity), linearly
+    /// interpolated, against the reference on `s`.
+    fn score(&self, cand: &Table, s: &Scored) -> Metrics {
+        let c = self.table.channels().len();
+        let mut g = vec![0.0; s.set.pairs.len() * c];
+        s.stencil.apply(cand.data(), &mut g);
+        metrics(s.set, &s.reference, &g, c, None)
     }
 
     /// Metrics of an already-encoded payload (decoded exactly as a reader would).
     pub fn measure_payload(&self, spec: &CodecSpec, payload: Vec<u8>) -> Result<Measured> {
         let t = self.table;
         let data = spec.decode(&payload, &Layout::of(t))?;
-        let cand = InterpolatedTable {
-            table: Table::new(
-                t.grid().clone(),
-                t.channels().clone(),
-                t.provenance().clone(),
-                data,
-                t.valid().to_vec(),
-            )?,
-            interp: Interp::Linear,
-        };
+        // Table::new refuses non-finite values in valid cells, as a reader would.
+        let cand = Table::new(
+            t.grid().clone(),
+            t.channels().clone(),
+            t.provenance().clone(),
+            data,
+            t.valid().to_vec(),
+        )?;
         Ok(Measured {
             spec: spec.clone(),
-            metrics: self.score(&cand, &self.main)?,
-            held_out: self
-                .held
-                .as_ref()
-                .map(|h| self.score(&cand, h))
-                .transpose()?,
+            metrics: self.score(&cand, &self.main),
+            held_out: self.held.as_ref().map(|h| self.score(&cand, h)),
             payload,
         })
     }
@@ -349,35 +331,76 @@ impl State<'_> {
         meets
     }
 
-    /// Bisection in log(step) over [lo, hi] for the largest accepted step (the error grows
-    /// with the step); `None` when even `lo` is not accepted.
-    fn bisect<F>(
-        &mut self,
-        lo: f64,
-        hi: f64,
-        halvings: usize,
-        what: &str,
-        mut f: F,
-    ) -> Result<Option<f64>>
-    where
-        F: FnMut(f64) -> Result<Measured>,
-    {
-        let (mut lo, mut hi) = (lo.ln(), hi.ln());
-        let m = f(lo.exp())?;
-        if !self.consider(m, format!("{what} step={:.4e}", lo.exp())) {
-            return Ok(None);
+    /// Records the trials of a [`Bisection`], in the order they were made.
+    fn record(&mut self, b: Bisection) -> Option<f64> {
+        for (m, what) in b.trials {
+            self.consider(m, what);
         }
-        for _ in 0..halvings {
-            let mid = 0.5 * (lo + hi);
-            let m = f(mid.exp())?;
-            if self.consider(m, format!("{what} step={:.4e}", mid.exp())) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        Ok(Some(lo.exp()))
+        b.found
     }
+}
+
+/// The trials of one bisection and the largest accepted step (`None` when even the lowest
+/// step was not accepted).
+struct Bisection {
+    trials: Vec<(Measured, String)>,
+    found: Option<f64>,
+}
+
+/// Bisection in log(step) over [lo, hi] for the largest accepted step (the error grows with
+/// the step). It depends on nothing but its own trials (acceptance is a property of one
+/// measurement), so independent bisections run in parallel and are recorded afterwards in a
+/// fixed order: the choice and the trial list do not depend on the number of threads.
+fn bisect<F>(
+    budget: &Budget,
+    lo: f64,
+    hi: f64,
+    halvings: usize,
+    what: &str,
+    f: F,
+) -> Result<Bisection>
+where
+    F: Fn(f64) -> Result<Measured>,
+{
+    let (mut lo, mut hi) = (lo.ln(), hi.ln());
+    let mut trials = Vec::with_capacity(halvings + 1);
+    let m = f(lo.exp())?;
+    let ok = accepts(budget, &m);
+    trials.push((m, format!("{what} step={:.4e}", lo.exp())));
+    if !ok {
+        return Ok(Bisection {
+            trials,
+            found: None,
+        });
+    }
+    for _ in 0..halvings {
+        let mid = 0.5 * (lo + hi);
+        let m = f(mid.exp())?;
+        if accepts(budget, &m) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        trials.push((m, format!("{what} step={:.4e}", mid.exp())));
+    }
+    Ok(Bisection {
+        trials,
+        found: Some(lo.exp()),
+    })
+}
+
+/// Runs `jobs` in parallel and returns their results in order (the first error in order, so
+/// that a failure reads the same for any number of threads).
+fn in_parallel<J: Sync>(
+    jobs: &[J],
+    run: impl Fn(&J) -> Result<Bisection> + Sync + Send,
+) -> Result<Vec<Bisection>> {
+    use rayon::prelude::*;
+    jobs.par_iter()
+        .map(run)
+        .collect::<Vec<_>>()
+        .into_iter()
+        .collect()
 }
 
 /// One ε of the log curve: its transform and the plain-fill DCT coefficients.
@@ -449,83 +472,119 @@ fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Re
             coding: ContextCoding { deadzone },
             residual: None,
         };
-    // Phase 1.
-    let mut best_context: Option<(usize, f64, usize)> = None;
-    for (i, e) in cands.iter().enumerate() {
+    // Phase 1: every ε at once.
+    let phase1 = in_parallel(&cands, |e| {
         let what = format!("dct context eps={} deadzone={DEFAULT_DEADZONE}", e.eps_rel);
-        let found = st.bisect(STEP_RANGE.0, STEP_RANGE.1, BISECTIONS, &what, |step| {
-            let spec = context_spec(e, step, DEFAULT_DEADZONE, 0);
-            let payload = coefcode::encode(&coefcode::quantize_all(
-                &e.coefs,
-                &dims,
-                &vec![step; c],
-                DEFAULT_DEADZONE,
-            ));
-            ev.measure_payload(&spec, payload)
-        })?;
-        if let Some(step) = found {
+        bisect(
+            budget,
+            STEP_RANGE.0,
+            STEP_RANGE.1,
+            BISECTIONS,
+            &what,
+            |step| {
+                let spec = context_spec(e, step, DEFAULT_DEADZONE, 0);
+                let payload = coefcode::encode(&coefcode::quantize_all(
+                    &e.coefs,
+                    &dims,
+                    &vec![step; c],
+                    DEFAULT_DEADZONE,
+                ));
+                ev.measure_payload(&spec, payload)
+            },
+        )
+    })?;
+    let mut best_context: Option<(usize, f64, usize)> = None;
+    for (i, b) in phase1.into_iter().enumerate() {
+        if let Some(step) = st.record(b) {
             let bytes = st.best.as_ref().map_or(usize::MAX, |b| b.payload.len());
             if best_context.is_none_or(|(_, _, b)| bytes < b) {
                 best_context = Some((i, step, bytes));
             }
         }
     }
-    // Phase 1b.
-    let zstd_eps: Vec<usize> = match best_context {
-        Some((i, _, _)) => vec![i],
-        None => (0..cands.len()).collect(),
-    };
-    for i in zstd_eps {
-        let e = &cands[i];
-        let entropy = Zstd { level };
-        let what = format!("dct zstd eps={}", e.eps_rel);
-        st.bisect(STEP_RANGE.0, STEP_RANGE.1, BISECTIONS, &what, |step| {
-            let spec = CodecSpec::Dct {
-                domain: Domain::FillInvalid,
-                transform: e.transform.clone(),
-                dct: dct::DctStage {
-                    step: vec![step; c],
-                },
-                entropy,
-                residual: None,
-            };
-            let comps: Vec<_> = e
-                .coefs
-                .iter()
-                .map(|p| dct::quantize(p, &dims, step))
-                .collect();
-            let payload = entropy.compress(&dct::serialize(&comps))?;
-            ev.measure_payload(&spec, payload)
-        })?;
+    // Phases 1b and 2 depend on phase 1 only: all their bisections at once, recorded 1b first.
+    enum Job {
+        Zstd(usize),
+        Refine(usize, f64, f64, u32),
     }
-    // Phase 2.
+    let mut jobs: Vec<Job> = match best_context {
+        Some((i, _, _)) => vec![Job::Zstd(i)],
+        None => (0..cands.len()).map(Job::Zstd).collect(),
+    };
     if let Some((i, step, _)) = best_context {
-        let e = &cands[i];
         for (deadzone, refine) in REFINEMENTS {
             let deadzone = if deadzone > 0.0 {
                 deadzone
             } else {
                 DEFAULT_DEADZONE
             };
+            jobs.push(Job::Refine(i, step, deadzone, refine));
+        }
+    }
+    let later = in_parallel(&jobs, |job| match *job {
+        // Phase 1b.
+        Job::Zstd(i) => {
+            let e = &cands[i];
+            let entropy = Zstd { level };
+            let what = format!("dct zstd eps={}", e.eps_rel);
+            bisect(
+                budget,
+                STEP_RANGE.0,
+                STEP_RANGE.1,
+                BISECTIONS,
+                &what,
+                |step| {
+                    let spec = CodecSpec::Dct {
+                        domain: Domain::FillInvalid,
+                        transform: e.transform.clone(),
+                        dct: dct::DctStage {
+                            step: vec![step; c],
+                        },
+                        entropy,
+                        residual: None,
+                    };
+                    let comps: Vec<_> = e
+                        .coefs
+                        .iter()
+                        .map(|p| dct::quantize(p, &dims, step))
+                        .collect();
+                    let payload = entropy.compress(&dct::serialize(&comps))?;
+                    ev.measure_payload(&spec, payload)
+                },
+            )
+        }
+        // Phase 2.
+        Job::Refine(i, step, deadzone, refine) => {
+            let e = &cands[i];
             let what = format!(
                 "dct context eps={} deadzone={deadzone} refine={refine}",
                 e.eps_rel
             );
-            st.bisect(step / 2.0, step * 2.0, LOCAL_BISECTIONS, &what, |s| {
-                let spec = context_spec(e, s, deadzone, refine);
-                let payload = if refine == 0 {
-                    coefcode::encode(&coefcode::quantize_all(
-                        &e.coefs,
-                        &dims,
-                        &vec![s; c],
-                        deadzone,
-                    ))
-                } else {
-                    spec.encode(table)?
-                };
-                ev.measure_payload(&spec, payload)
-            })?;
+            bisect(
+                budget,
+                step / 2.0,
+                step * 2.0,
+                LOCAL_BISECTIONS,
+                &what,
+                |s| {
+                    let spec = context_spec(e, s, deadzone, refine);
+                    let payload = if refine == 0 {
+                        coefcode::encode(&coefcode::quantize_all(
+                            &e.coefs,
+                            &dims,
+                            &vec![s; c],
+                            deadzone,
+                        ))
+                    } else {
+                        spec.encode(table)?
+                    };
+                    ev.measure_payload(&spec, payload)
+                },
+            )
         }
+    })?;
+    for b in later {
+        st.record(b);
     }
     if st.best.is_none() {
         let spec = CodecRequest::Lossless {

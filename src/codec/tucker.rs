@@ -197,7 +197,7 @@ fn multiply_all(x: &[f64], dims: &[usize], mats: &[(Vec<f64>, usize)]) -> Vec<f6
     let mut cur_dims = dims.to_vec();
     for a in order {
         let (mat, m) = &mats[a];
-        cur = dct::apply_axis(&cur, &cur_dims, a, mat, *m, true);
+        cur = dct::apply_axis_f64(&cur, &cur_dims, a, mat, *m);
         cur_dims[a] = *m;
     }
     cur
