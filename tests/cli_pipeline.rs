@@ -167,6 +167,41 @@ fn pack_default_material_reports_every_metric() {
         assert!(x.is_finite() && x >= 0.0, "{m} = {x}");
     }
     assert_eq!(v["check"]["uniform"]["combined"]["nonfinite"], 0);
+    // Without --codec or --max-error the file is the budget search's choice for the default
+    // budget on the codec's own error, and the report says so.
+    let b = &v["budget"];
+    assert_eq!(b["default"], true);
+    assert_eq!(b["against"], "table");
+    assert_ne!(v["codec"]["kind"], "lossless", "{}", v["codec"]);
+    for (k, bound) in [("log_rmse", 0.002), ("p99_rel_core", 0.05)] {
+        let x = b["measured"][k].as_f64().unwrap();
+        assert!(x <= bound * 0.98, "{k} = {x} on the search set");
+        let h = b["measured_held_out"][k].as_f64().unwrap();
+        assert!(h <= bound, "{k} = {h} on the held-out set");
+    }
+    let raw = v["raw_f32_bytes"].as_u64().unwrap();
+    assert!(
+        v["bytes"].as_u64().unwrap() * 20 < raw,
+        "{} of {raw}",
+        v["bytes"]
+    );
+    // The search runs its bisections in parallel: one thread must choose the same bytes.
+    let one = dir.path().join("p1.bpk");
+    brdfpack()
+        .env("RAYON_NUM_THREADS", "1")
+        .args([
+            "pack",
+            "--grid",
+            "halfdiff3:32x32x64",
+            "--samples",
+            "4096",
+            "-q",
+            "-o",
+        ])
+        .arg(&one)
+        .assert()
+        .success();
+    assert!(std::fs::read(&one).unwrap() == std::fs::read(&out).unwrap());
 }
 
 #[test]

@@ -39,7 +39,9 @@ pub struct PackArgs {
     pub seed: u64,
     #[command(flatten)]
     pub symmetry: SamplingArgs,
-    /// Codec of the file (docs/compression.md); default `lossless` (bit-exact).
+    /// Codec of the file (docs/compression.md), e.g. `lossless` (bit-exact) or
+    /// `dct:step=0.05`. Default: the smallest file whose decoded table is within
+    /// `log_rmse=0.002,p99_rel_core=0.05` of the tabulated one (a budget search).
     #[arg(long, conflicts_with = "max_error")]
     pub codec: Option<String>,
     /// Error budget, e.g. `log_rmse=0.01,p99_rel_core=0.2`: the smallest file meeting it on
@@ -84,11 +86,24 @@ struct PackReport {
     grid_search_s: Option<f64>,
 }
 
+/// The budget `pack` searches with when neither `--codec` nor `--max-error` is given: issue
+/// #5's "production" budget on the codec's own error (the decoded table against the tabulated
+/// one), which the lossless fallback always meets, so a coarse grid never makes it fail.
+pub const DEFAULT_MAX_ERROR: &str = "log_rmse=0.002,p99_rel_core=0.05";
+
 #[derive(Serialize)]
 struct BudgetReport {
     bounds: Vec<(String, f64)>,
+    /// True when the budget is [`DEFAULT_MAX_ERROR`] (no `--codec`, no `--max-error`).
+    default: bool,
     /// What the error is measured against: `model` or `table`.
     against: &'static str,
+    /// Against the table: the chosen file's metrics on the search's set and on the held-out
+    /// set (against a model they are in `grid_search`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    measured: Option<crate::check::Metrics>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    measured_held_out: Option<crate::check::Metrics>,
     set: String,
     samples: usize,
     seed: u64,
@@ -105,6 +120,8 @@ struct Packed {
     tabulate_s: f64,
     encode_s: f64,
     grid_search: Option<(Vec<GridTrial>, f64)>,
+    /// A codec search against the table: the chosen file's metrics (search set, held-out).
+    codec_error: Option<(crate::check::Metrics, Option<crate::check::Metrics>)>,
 }
 
 pub fn run(a: PackArgs) -> anyhow::Result<i32> {
@@ -116,18 +133,43 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     };
     let is_model = matches!(source, Source::Model(_));
     let src = source.into_brdf(Lookup::Linear)?;
-    let budget = a.max_error.as_deref().map(Budget::parse).transpose()?;
-    let tab_opts = a.symmetry.options(stderr_is_terminal() && !a.quiet);
+    let explicit = a.max_error.as_deref().map(Budget::parse).transpose()?;
+    // A model is the truth the file stands for: a budget the user gives bounds the error
+    // against it. The default budget bounds the codec's error alone.
+    let against_model = explicit.is_some() && is_model;
+    let default_budget = explicit.is_none() && a.codec.is_none();
+    let budget = match explicit {
+        Some(b) => Some(b),
+        None if default_budget => Some(Budget::parse(DEFAULT_MAX_ERROR)?),
+        None => None,
+    };
+    let show_progress = stderr_is_terminal() && !a.quiet;
+    let tab_opts = a.symmetry.options(show_progress);
+    let spinner = |what: String| {
+        show_progress.then(|| {
+            let b = indicatif::ProgressBar::new_spinner();
+            b.set_message(what);
+            b.enable_steady_tick(std::time::Duration::from_millis(120));
+            b
+        })
+    };
     let packed = match &budget {
-        // A model is the truth the file stands for: bound the error against it.
-        Some(budget) if is_model => {
+        Some(budget) if against_model => {
             let (ladder, always) = match &a.grid {
                 Some(g) => (vec![g.as_str()], 1),
                 None => (grid_ladder(src.as_ref()), always_searched(src.as_ref())),
             };
             let set = crate::check::SampleSet::uniform(a.samples, a.seed);
             let t0 = Instant::now();
-            let found = search_grids(src.as_ref(), &ladder, always, budget, &set, 19, &tab_opts)?;
+            let progress = spinner(format!(
+                "searching grids and codecs for {} against the model",
+                budget.describe()
+            ));
+            let found = search_grids(src.as_ref(), &ladder, always, budget, &set, 19, &tab_opts);
+            if let Some(p) = progress {
+                p.finish_and_clear();
+            }
+            let found = found?;
             let total_s = t0.elapsed().as_secs_f64();
             Packed {
                 table: found.choice.table,
@@ -136,6 +178,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
                 tabulate_s: found.choice.tabulate_s,
                 encode_s: found.choice.search_s,
                 grid_search: Some((found.trials, total_s)),
+                codec_error: None,
             }
         }
         _ => {
@@ -147,14 +190,25 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             let table = tabulate(src.as_ref(), &grid, &tab_opts)?;
             let tabulate_s = t0.elapsed().as_secs_f64();
             let t1 = Instant::now();
-            let codec = match (&a.codec, &budget) {
+            let (codec, codec_error) = match (&a.codec, &budget) {
                 (_, Some(budget)) => {
                     let set = crate::check::SampleSet::uniform(a.samples, a.seed);
-                    search(&table, budget, &set, 19)?.best.spec
+                    let progress = spinner(format!(
+                        "searching codecs for {} against the table",
+                        budget.describe()
+                    ));
+                    let found = search(&table, budget, &set, 19);
+                    if let Some(p) = progress {
+                        p.finish_and_clear();
+                    }
+                    let best = found?.best;
+                    (best.spec, Some((best.metrics, best.held_out)))
                 }
-                (c, None) => {
-                    CodecRequest::parse(c.as_deref().unwrap_or("lossless"))?.resolve(&table)?
-                }
+                // Without --codec the default budget is set, so this is `--codec`'s.
+                (c, None) => (
+                    CodecRequest::parse(c.as_deref().unwrap_or("lossless"))?.resolve(&table)?,
+                    None,
+                ),
             };
             let bytes = native::to_bytes(&table, &codec)?;
             Packed {
@@ -164,6 +218,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
                 tabulate_s,
                 encode_s: t1.elapsed().as_secs_f64(),
                 grid_search: None,
+                codec_error,
             }
         }
     };
@@ -174,6 +229,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         tabulate_s,
         encode_s,
         grid_search,
+        codec_error,
     } = packed;
     let grid = table.grid().clone();
     // Check what a reader will get: decode the bytes we are about to write.
@@ -197,7 +253,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     )?;
     // The search measured these very bytes on this very set; a mismatch would be a bug, and
     // a file that misses its budget must never be written.
-    if let (Some(b), true) = (&budget, is_model)
+    if let (Some(b), true) = (&budget, against_model)
         && !b.met_by(&report.uniform.combined)
     {
         return Err(crate::Error::Failure(format!(
@@ -228,9 +284,14 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         bounds_exceeded: failed.clone(),
         budget: budget.map(|b| {
             let set = crate::check::SampleSet::uniform(0, a.seed);
+            let (measured, measured_held_out) =
+                codec_error.map_or((None, None), |(m, h)| (Some(m), h));
             BudgetReport {
                 bounds: b.bounds,
-                against: if is_model { "model" } else { "table" },
+                default: default_budget,
+                against: if against_model { "model" } else { "table" },
+                measured,
+                measured_held_out,
                 set: set.name.clone(),
                 samples: a.samples,
                 seed: a.seed,
@@ -288,8 +349,13 @@ fn human(r: &PackReport) -> String {
         let bounds: Vec<String> = b.bounds.iter().map(|(k, v)| format!("{k} ≤ {v}")).collect();
         let _ = writeln!(
             s,
-            "budget        {} against the {} ({} set, {} pairs, seed {}: bounds × {}{})",
+            "budget        {}{} against the {} ({} set, {} pairs, seed {}: bounds × {}{})",
             bounds.join(", "),
+            if b.default {
+                " (default; --max-error or --codec to change)"
+            } else {
+                ""
+            },
             b.against,
             b.set,
             b.samples,
@@ -298,6 +364,23 @@ fn human(r: &PackReport) -> String {
             b.held_out_seed
                 .map_or(String::new(), |h| format!("; held-out seed {h}: bounds"))
         );
+        if let Some(m) = &b.measured {
+            let values = |m: &crate::check::Metrics| {
+                b.bounds
+                    .iter()
+                    .map(|(k, _)| format!("{k} {}", fmt_num(m.get(k))))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            let _ = writeln!(
+                s,
+                "codec error   {} against the table{}",
+                values(m),
+                b.measured_held_out
+                    .as_ref()
+                    .map_or(String::new(), |h| format!(" (held-out: {})", values(h)))
+            );
+        }
     }
     if let (Some(trials), Some(t)) = (&r.grid_search, r.grid_search_s) {
         let _ = writeln!(
