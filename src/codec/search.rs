@@ -167,19 +167,19 @@ impl<'a> Evaluator<'a> {
     /// Metrics of the uncompressed table itself (linear interpolation) against the reference:
     /// the floor no encoding of it goes below, up to chance.
     pub fn measure_uncompressed(&self) -> Result<(Metrics, Option<Metrics>)> {
-        let cand = self.table;
+        let data = self.table.data();
         Ok((
-            self.score(cand, &self.main),
-            self.held.as_ref().map(|h| self.score(cand, h)),
+            self.score(data, &self.main),
+            self.held.as_ref().map(|h| self.score(data, h)),
         ))
     }
 
-    /// Metrics of `cand` (a table on the evaluator's grid and validity), linearly
+    /// Metrics of `data` (cell-major values on the evaluator's grid and validity), linearly
     /// interpolated, against the reference on `s`.
-    fn score(&self, cand: &Table, s: &Scored) -> Metrics {
+    fn score(&self, data: &[f32], s: &Scored) -> Metrics {
         let c = self.table.channels().len();
         let mut g = vec![0.0; s.set.pairs.len() * c];
-        s.stencil.apply(cand.data(), &mut g);
+        s.stencil.apply(data, &mut g);
         metrics(s.set, &s.reference, &g, c, None)
     }
 
@@ -197,8 +197,8 @@ impl<'a> Evaluator<'a> {
         )?;
         Ok(Measured {
             spec: spec.clone(),
-            metrics: self.score(&cand, &self.main),
-            held_out: self.held.as_ref().map(|h| self.score(&cand, h)),
+            metrics: self.score(cand.data(), &self.main),
+            held_out: self.held.as_ref().map(|h| self.score(cand.data(), h)),
             payload,
         })
     }
@@ -506,6 +506,13 @@ fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Re
     enum Job {
         Zstd(usize),
         Refine(usize, f64, f64, u32),
+    }
+    // Only the best ε's coefficients are used from here on (every ε's when none met the
+    // budget): free the others (2 × 400 MB for a 3-channel halfdiff4:64 table).
+    if let Some((i, step, bytes)) = best_context {
+        let best = cands.swap_remove(i);
+        cands = vec![best];
+        best_context = Some((0, step, bytes));
     }
     let mut jobs: Vec<Job> = match best_context {
         Some((i, _, _)) => vec![Job::Zstd(i)],
