@@ -27,7 +27,8 @@ pub struct CompressArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Codec spec, e.g. `lossless`, `dct:step=0.02`, `uniform:bits=12`, `f16` (see
-    /// docs/compression.md).
+    /// docs/compression.md). Default `lossless` (bit-exact) unless `--max-error` is given;
+    /// `pack` searches by default instead.
     #[arg(long, conflicts_with = "max_error")]
     pub codec: Option<String>,
     /// Error budget on the `uniform` sample set, e.g. `log_rmse=0.01,p99_rel_core=0.2`: the
