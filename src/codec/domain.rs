@@ -109,14 +109,16 @@ pub fn fill_refined<F>(
     iterations: u32,
     reconstruct: F,
 ) where
-    F: Fn(usize, &[f64]) -> Vec<f32>,
+    F: Fn(usize, &[f64]) -> Vec<f32> + Sync,
 {
+    use rayon::prelude::*;
     fill_invalid(planes, dims, valid, axis_order);
     if valid.iter().all(|&v| v) {
         return;
     }
-    for _ in 0..iterations {
-        for (k, p) in planes.iter_mut().enumerate() {
+    // The components refine independently of each other: in parallel, same result.
+    planes.par_iter_mut().enumerate().for_each(|(k, p)| {
+        for _ in 0..iterations {
             let r = reconstruct(k, p);
             for ((v, &ok), &x) in p.iter_mut().zip(valid).zip(&r) {
                 if !ok {
@@ -124,7 +126,7 @@ pub fn fill_refined<F>(
                 }
             }
         }
-    }
+    });
 }
 
 #[cfg(test)]
