@@ -213,25 +213,11 @@ pub fn evaluate_pairs(
             reference.channels().names().join(",")
         )));
     }
-    let mut f = vec![0.0; set.pairs.len() * c];
-    let mut g = vec![0.0; set.pairs.len() * c];
-    const CHUNK: usize = 1024;
-    f.par_chunks_mut(CHUNK * c)
-        .zip(g.par_chunks_mut(CHUNK * c))
-        .enumerate()
-        .for_each(|(k, (fc, gc))| {
-            let pairs = &set.pairs[k * CHUNK..(k * CHUNK + fc.len() / c)];
-            for (j, &(wi, wo)) in pairs.iter().enumerate() {
-                reference.eval(wi, wo, &mut fc[j * c..(j + 1) * c]);
-                candidate.eval(wi, wo, &mut gc[j * c..(j + 1) * c]);
-            }
-        });
-    Ok((f, g))
+    Ok((evaluate_set(reference, set), evaluate_set(candidate, set)))
 }
 
-/// The values of one BRDF at every pair of `set` (pair-major), the `f` or `g` of
-/// [`evaluate_pairs`] alone: the codec search scores each candidate against reference values
-/// it computed once.
+/// The values of one BRDF at every pair of `set` (pair-major): one side of
+/// [`evaluate_pairs`]. The codec search computes its reference values once with it.
 pub fn evaluate_set(brdf: &dyn Brdf, set: &SampleSet) -> Vec<f64> {
     let c = brdf.channels().len();
     let mut f = vec![0.0; set.pairs.len() * c];

@@ -227,19 +227,25 @@ impl Table {
     /// Queries beyond θmax return an error in [`Table::try_eval`]; here they give 0.
     pub fn eval_into(&self, wi: Vec3, wo: Vec3, interp: Interp, out: &mut [f64]) {
         out.fill(0.0);
-        if !self.grid.in_domain(wi, wo) {
-            return;
-        }
-        let Some(coords) = self.grid.coords_of(wi, wo) else {
+        let Some(t) = self.continuous_indices(wi, wo) else {
             return;
         };
-        let axes = self.grid.axes();
-        let mut t = [0f64; 4];
-        for (tk, (a, &x)) in t.iter_mut().zip(axes.iter().zip(&coords)) {
-            *tk = a.continuous_index(x);
-        }
         let layout = Layout::new(&self.grid);
         self.interpolate_masked(&t, interp, &layout, &self.valid[..], out);
+    }
+
+    /// The pair's continuous index along every axis (storage order); `None` outside the
+    /// stored domain, where [`Table::eval_into`] gives 0.
+    fn continuous_indices(&self, wi: Vec3, wo: Vec3) -> Option<[f64; 4]> {
+        if !self.grid.in_domain(wi, wo) {
+            return None;
+        }
+        let coords = self.grid.coords_of(wi, wo)?;
+        let mut t = [0f64; 4];
+        for (tk, (a, &x)) in t.iter_mut().zip(self.grid.axes().iter().zip(&coords)) {
+            *tk = a.continuous_index(x);
+        }
+        Some(t)
     }
 
     /// Interpolates at continuous indices `t_in` (storage order) into `out`, which the caller
@@ -329,20 +335,13 @@ impl Table {
         use rayon::prelude::*;
         const CHUNK: usize = 4096;
         let layout = Layout::new(&self.grid);
-        let axes = self.grid.axes();
         let parts: Vec<Stencil> = pairs
             .par_chunks(CHUNK)
             .map(|pairs| {
                 let mut st = Stencil::default();
                 for &(wi, wo) in pairs {
                     let mut after = After::None;
-                    if self.grid.in_domain(wi, wo)
-                        && let Some(coords) = self.grid.coords_of(wi, wo)
-                    {
-                        let mut t = [0f64; 4];
-                        for (tk, (a, &x)) in t.iter_mut().zip(axes.iter().zip(&coords)) {
-                            *tk = a.continuous_index(x);
-                        }
+                    if let Some(t) = self.continuous_indices(wi, wo) {
                         let (wsum, tcont) =
                             self.corners_masked(&t, interp, &layout, &self.valid[..], |flat, w| {
                                 st.cells.push(flat);

@@ -133,16 +133,10 @@ fn compress_to_stdout_writes_only_the_file() {
 fn pack_default_material_reports_every_metric() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("p.bpk");
+    let pack = ["pack", "--grid", "halfdiff3:32x32x64", "--samples", "4096"];
     let o = brdfpack()
-        .args([
-            "pack",
-            "--grid",
-            "halfdiff3:32x32x64",
-            "--samples",
-            "4096",
-            "--json",
-            "-o",
-        ])
+        .args(pack)
+        .args(["--json", "-o"])
         .arg(&out)
         .assert()
         .success()
@@ -189,15 +183,8 @@ fn pack_default_material_reports_every_metric() {
     let one = dir.path().join("p1.bpk");
     brdfpack()
         .env("RAYON_NUM_THREADS", "1")
-        .args([
-            "pack",
-            "--grid",
-            "halfdiff3:32x32x64",
-            "--samples",
-            "4096",
-            "-q",
-            "-o",
-        ])
+        .args(pack)
+        .args(["-q", "-o"])
         .arg(&one)
         .assert()
         .success();

@@ -134,19 +134,21 @@ pub(crate) fn apply_axis_f64(
     if inner == 1 {
         // Contiguous lines: LANES lines side by side, transposed so that one load holds the
         // j-th input of each.
-        out.par_chunks_mut(LANES * m)
-            .enumerate()
-            .for_each(|(b, dst)| {
+        // Lanes past the last line keep an earlier block's values: their sums are never
+        // stored.
+        out.par_chunks_mut(LANES * m).enumerate().for_each_init(
+            || vec![0.0; n * LANES],
+            |t, (b, dst)| {
                 let lines = dst.len() / m;
-                let mut t = vec![0.0; n * LANES];
                 for l in 0..lines {
                     let src = &input[(b * LANES + l) * n..(b * LANES + l + 1) * n];
                     for (j, v) in src.iter().enumerate() {
                         t[j * LANES + l] = *v;
                     }
                 }
-                lines_block(mat, n, m, &t, lines, dst);
-            });
+                lines_block(mat, n, m, t, lines, dst);
+            },
+        );
         return out;
     }
     // Strided axis: a tile is TILE columns of one outer block, all m output rows.

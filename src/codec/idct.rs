@@ -36,6 +36,15 @@ struct HalfBasis {
     pairs: Vec<[f32; 2]>,
 }
 
+/// The row-major weights `rows[k·stride + t]` (k < e) regrouped two outputs at a time for the
+/// strided kernels: `out[p·e + k]` = (rows[k·stride + 2p], rows[k·stride + 2p + 1]), p < `pairs`.
+pub(crate) fn pair_major(rows: &[f32], stride: usize, e: usize, pairs: usize) -> Vec<[f32; 2]> {
+    (0..pairs)
+        .flat_map(|p| (0..e).map(move |k| (p, k)))
+        .map(|(p, k)| [rows[k * stride + 2 * p], rows[k * stride + 2 * p + 1]])
+        .collect()
+}
+
 /// Width of the register tiles of the contiguous kernel (outputs per tile).
 const TILE_N: usize = 16;
 
@@ -54,10 +63,7 @@ impl HalfBasis {
                 };
             }
         }
-        let pairs = (0..h / 2)
-            .flat_map(|p| (0..e).map(move |k| (p, k)))
-            .map(|(p, k)| [rows[k * hp + 2 * p], rows[k * hp + 2 * p + 1]])
-            .collect();
+        let pairs = pair_major(&rows, hp, e, h / 2);
         HalfBasis {
             n,
             e,

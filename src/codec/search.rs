@@ -389,6 +389,14 @@ where
     })
 }
 
+/// [`bisect`] over the whole [`STEP_RANGE`] with [`BISECTIONS`] halvings (phases 1 and 1b).
+fn bisect_whole_range<F>(budget: &Budget, what: &str, f: F) -> Result<Bisection>
+where
+    F: Fn(f64) -> Result<Measured>,
+{
+    bisect(budget, STEP_RANGE.0, STEP_RANGE.1, BISECTIONS, what, f)
+}
+
 /// Runs `jobs` in parallel and returns their results in order (the first error in order, so
 /// that a failure reads the same for any number of threads).
 fn in_parallel<J: Sync>(
@@ -475,23 +483,16 @@ fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Re
     // Phase 1: every ε at once.
     let phase1 = in_parallel(&cands, |e| {
         let what = format!("dct context eps={} deadzone={DEFAULT_DEADZONE}", e.eps_rel);
-        bisect(
-            budget,
-            STEP_RANGE.0,
-            STEP_RANGE.1,
-            BISECTIONS,
-            &what,
-            |step| {
-                let spec = context_spec(e, step, DEFAULT_DEADZONE, 0);
-                let payload = coefcode::encode(&coefcode::quantize_all(
-                    &e.coefs,
-                    &dims,
-                    &vec![step; c],
-                    DEFAULT_DEADZONE,
-                ));
-                ev.measure_payload(&spec, payload)
-            },
-        )
+        bisect_whole_range(budget, &what, |step| {
+            let spec = context_spec(e, step, DEFAULT_DEADZONE, 0);
+            let payload = coefcode::encode(&coefcode::quantize_all(
+                &e.coefs,
+                &dims,
+                &vec![step; c],
+                DEFAULT_DEADZONE,
+            ));
+            ev.measure_payload(&spec, payload)
+        })
     })?;
     let mut best_context: Option<(usize, f64, usize)> = None;
     for (i, b) in phase1.into_iter().enumerate() {
@@ -534,31 +535,24 @@ fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Re
             let e = &cands[i];
             let entropy = Zstd { level };
             let what = format!("dct zstd eps={}", e.eps_rel);
-            bisect(
-                budget,
-                STEP_RANGE.0,
-                STEP_RANGE.1,
-                BISECTIONS,
-                &what,
-                |step| {
-                    let spec = CodecSpec::Dct {
-                        domain: Domain::FillInvalid,
-                        transform: e.transform.clone(),
-                        dct: dct::DctStage {
-                            step: vec![step; c],
-                        },
-                        entropy,
-                        residual: None,
-                    };
-                    let comps: Vec<_> = e
-                        .coefs
-                        .iter()
-                        .map(|p| dct::quantize(p, &dims, step))
-                        .collect();
-                    let payload = entropy.compress(&dct::serialize(&comps))?;
-                    ev.measure_payload(&spec, payload)
-                },
-            )
+            bisect_whole_range(budget, &what, |step| {
+                let spec = CodecSpec::Dct {
+                    domain: Domain::FillInvalid,
+                    transform: e.transform.clone(),
+                    dct: dct::DctStage {
+                        step: vec![step; c],
+                    },
+                    entropy,
+                    residual: None,
+                };
+                let comps: Vec<_> = e
+                    .coefs
+                    .iter()
+                    .map(|p| dct::quantize(p, &dims, step))
+                    .collect();
+                let payload = entropy.compress(&dct::serialize(&comps))?;
+                ev.measure_payload(&spec, payload)
+            })
         }
         // Phase 2.
         Job::Refine(i, step, deadzone, refine) => {

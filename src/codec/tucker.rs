@@ -520,10 +520,7 @@ impl Basis {
                 rows[k * np + t] = dequant(f.codes[k * n + t], f.steps[k]) as f32;
             }
         }
-        let pairs = (0..n.div_ceil(2))
-            .flat_map(|p| (0..e).map(move |k| (p, k)))
-            .map(|(p, k)| [rows[k * np + 2 * p], rows[k * np + 2 * p + 1]])
-            .collect();
+        let pairs = super::idct::pair_major(&rows, np, e, n.div_ceil(2));
         Basis {
             n,
             e,
