@@ -464,3 +464,236 @@ fn figures_residual() {
         }
     }
 }
+
+/// What the codes of a decode-heavy table say about two decoder plans of docs/benchmarks.md
+/// ("Codec decode", what limits gold production), for the gold-metallic-paint production spec:
+/// per component the nonzero codes, the lines along the last axis that hold one, the positions
+/// a context decoder would visit if each line's last nonzero were coded; the multiply-adds
+/// per output cell of an ideal sparse separable expansion (best axis order), of the same split
+/// by frequency (each code to the part whose last axis is its lowest relative frequency), and
+/// of the row-skipping decoder's model (best order ending in axis 0, as the fused pass chooses
+/// here); and the cost of the zero flags under the context model against the cost of the flags
+/// left plus the line lengths (an adaptive exp-Golomb code, predicted from the neighbouring
+/// lines), by summing −log2 of each decision's probability.
+/// `BRDFPACK_SHARED=/work/shared cargo test --release --test codec_figures figures_gold_codes -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn figures_gold_codes() {
+    use brdfpack::codec::coefcode;
+    use std::collections::{BTreeSet, HashMap};
+    let Some(t) = testdata::shared_merl("gold-metallic-paint") else {
+        return;
+    };
+    let spec = CodecRequest::parse("dct:eps=0.001,step=0.316,refine=4")
+        .unwrap()
+        .resolve(&t)
+        .unwrap();
+    let payload = spec.encode(&t).unwrap();
+    let n = [90usize, 90, 180];
+    let cells = (n[0] * n[1] * n[2]) as f64;
+    let comps = coefcode::decode(&payload, &n, 3).unwrap();
+    let orders: Vec<[usize; 3]> = vec![
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
+    // Ideal sparse separable cost of the codes `ks` in axis order `o`.
+    let sparse = |ks: &[[usize; 3]], o: [usize; 3]| -> f64 {
+        if ks.is_empty() {
+            return 0.0;
+        }
+        let [a, b, c] = o.map(|x| n[x] as f64);
+        let pairs: BTreeSet<(usize, usize)> = ks.iter().map(|k| (k[o[1]], k[o[2]])).collect();
+        let lasts: BTreeSet<usize> = ks.iter().map(|k| k[o[2]]).collect();
+        (ks.len() as f64 * a / 2.0
+            + pairs.len() as f64 * a * b / 2.0
+            + lasts.len() as f64 * a * b * c / 2.0)
+            / cells
+    };
+    // Ctx of the context coder: P(0) from a fast and a slow estimate (src/codec/coefcode.rs).
+    #[derive(Clone, Copy)]
+    struct Ctx(u32, u32);
+    impl Ctx {
+        fn code(&mut self, bit: bool) -> f64 {
+            let p0 = ((self.0 + self.1) >> 1) as f64 / 65536.0;
+            let bits = -(if bit { 1.0 - p0 } else { p0 }).log2();
+            if bit {
+                self.0 -= self.0 >> 4;
+                self.1 -= self.1 >> 7;
+            } else {
+                self.0 += (65536 - self.0) >> 4;
+                self.1 += (65536 - self.1) >> 7;
+            }
+            bits
+        }
+    }
+    let bucket = |m: u64| -> usize {
+        [0u64, 1, 2, 4, 8, 16, 48, 256]
+            .iter()
+            .position(|&lim| m <= lim)
+            .unwrap_or(8)
+    };
+    let (mut flags_old, mut flags_new, mut lengths) = (0.0, 0.0, 0.0);
+    let mut zero_old: HashMap<(usize, usize, usize), Ctx> = HashMap::new();
+    let mut zero_new = zero_old.clone();
+    let mut len_ctx: HashMap<(u8, usize, usize), Ctx> = HashMap::new();
+    for (ci, q) in comps.iter().enumerate() {
+        let [e0, e1, e2] = [q.extent[0], q.extent[1], q.extent[2]];
+        let at = |i0: usize, i1: usize, i2: usize| q.codes[(i0 * e1 + i1) * e2 + i2];
+        let mut ks = Vec::new();
+        for i0 in 0..e0 {
+            for i1 in 0..e1 {
+                for i2 in 0..e2 {
+                    if at(i0, i1, i2) != 0 {
+                        ks.push([i0, i1, i2]);
+                    }
+                }
+            }
+        }
+        // Line ends along axis 2.
+        let mut len = vec![0usize; e0 * e1];
+        for i0 in 0..e0 {
+            for i1 in 0..e1 {
+                len[i0 * e1 + i1] = (0..e2)
+                    .rev()
+                    .find(|&i2| at(i0, i1, i2) != 0)
+                    .map_or(0, |i| i + 1);
+            }
+        }
+        let nonempty = len.iter().filter(|&&l| l > 0).count();
+        let walked: usize = len.iter().sum();
+        let best = orders
+            .iter()
+            .map(|&o| sparse(&ks, o))
+            .fold(f64::INFINITY, f64::min);
+        let mut split = 0.0;
+        for last in 0..3 {
+            let part: Vec<[usize; 3]> = ks
+                .iter()
+                .copied()
+                .filter(|k| {
+                    let r = |x: usize| k[x] as f64 / n[x] as f64;
+                    (0..3).min_by(|&x, &y| r(x).total_cmp(&r(y))).unwrap() == last
+                })
+                .collect();
+            split += orders
+                .iter()
+                .filter(|o| o[2] == last)
+                .map(|&o| sparse(&part, o))
+                .fold(f64::INFINITY, f64::min);
+        }
+        // The row-skipping decoder's model: rows of the strided passes skipped when all zero,
+        // single zeros skipped along the contiguous axis.
+        let rowskip = |o: [usize; 3]| -> f64 {
+            let mut dims = [e0, e1, e2];
+            let mut sup: Vec<bool> = q.codes.iter().map(|&c| c != 0).collect();
+            let mut cost = 0.0;
+            for &ax in &o {
+                let h = n[ax].div_ceil(2) as f64;
+                let outer: usize = dims[..ax].iter().product();
+                let inner: usize = dims[ax + 1..].iter().product();
+                let e = dims[ax];
+                if ax == 2 {
+                    cost += sup.iter().filter(|&&s| s).count() as f64 * h;
+                } else {
+                    let rows = (0..outer * e)
+                        .filter(|r| sup[r * inner..(r + 1) * inner].iter().any(|&s| s))
+                        .count();
+                    cost += rows as f64 * inner as f64 * h;
+                }
+                let mut next = vec![false; outer * n[ax] * inner];
+                for o in 0..outer {
+                    for x in 0..inner {
+                        if (0..e).any(|k| sup[(o * e + k) * inner + x]) {
+                            for j in 0..n[ax] {
+                                next[(o * n[ax] + j) * inner + x] = true;
+                            }
+                        }
+                    }
+                }
+                sup = next;
+                dims[ax] = n[ax];
+            }
+            cost / cells
+        };
+        let decoder = orders
+            .iter()
+            .filter(|o| o[2] == 0)
+            .map(|&o| rowskip(o))
+            .fold(f64::INFINITY, f64::min);
+        println!(
+            "CODES gold production component {ci}: box {e0}x{e1}x{e2} ({} positions), {} nonzero, \
+             {nonempty} of {} lines nonempty, {walked} positions with line ends; multiply-adds \
+             per cell: sparse {best:.1}, split {split:.1}, row-skipping decoder {decoder:.1}",
+            e0 * e1 * e2,
+            ks.len(),
+            e0 * e1
+        );
+        // Coder cost of the zero flags, both ways (contexts as in coefcode.rs).
+        let cc = ci.min(2);
+        for i0 in 0..e0 {
+            for i1 in 0..e1 {
+                let l = len[i0 * e1 + i1];
+                let pred = l_neighbour(&len, e1, i0, i1);
+                let b = if pred == 0 {
+                    0
+                } else {
+                    (1 + pred.ilog2() as usize).min(8)
+                };
+                let mut c = *len_ctx.entry((0, cc, b)).or_insert(Ctx(32768, 32768));
+                lengths += c.code(l > 0);
+                len_ctx.insert((0, cc, b), c);
+                if l > 0 {
+                    let ex = l.ilog2() as usize;
+                    for i in 0..=ex {
+                        let key = (1, cc, b * 16 + i);
+                        let mut c = *len_ctx.entry(key).or_insert(Ctx(32768, 32768));
+                        lengths += c.code(i < ex);
+                        len_ctx.insert(key, c);
+                    }
+                    if ex > 0 {
+                        let key = (2, cc, ex);
+                        let mut c = *len_ctx.entry(key).or_insert(Ctx(32768, 32768));
+                        lengths += c.code((l >> (ex - 1)) & 1 == 1);
+                        len_ctx.insert(key, c);
+                        lengths += (ex - 1) as f64;
+                    }
+                }
+                for i2 in 0..e2 {
+                    let m = |a: i32| a.unsigned_abs() as u64;
+                    let nb = bucket(
+                        if i2 > 0 { m(at(i0, i1, i2 - 1)) } else { 0 }
+                            + if i1 > 0 { m(at(i0, i1 - 1, i2)) } else { 0 }
+                            + if i0 > 0 { m(at(i0 - 1, i1, i2)) } else { 0 },
+                    );
+                    let band = ((i0 + i1 + i2 + 1).ilog2() as usize).min(11);
+                    let bit = at(i0, i1, i2) != 0;
+                    let key = (cc, band, nb);
+                    flags_old += zero_old.entry(key).or_insert(Ctx(32768, 32768)).code(bit);
+                    if i2 + 1 < l {
+                        flags_new += zero_new.entry(key).or_insert(Ctx(32768, 32768)).code(bit);
+                    }
+                }
+            }
+        }
+    }
+    println!(
+        "CODES gold production payload {} B: zero flags {:.0} B now; with line ends {:.0} B of \
+         flags + {:.0} B of lengths = {:+.0} B",
+        payload.len(),
+        flags_old / 8.0,
+        flags_new / 8.0,
+        lengths / 8.0,
+        (flags_new + lengths - flags_old) / 8.0
+    );
+}
+
+/// The larger line length of the neighbouring lines one step back along axes 1 and 0.
+fn l_neighbour(len: &[usize], e1: usize, i0: usize, i1: usize) -> usize {
+    let up = if i1 > 0 { len[i0 * e1 + i1 - 1] } else { 0 };
+    let back = if i0 > 0 { len[(i0 - 1) * e1 + i1] } else { 0 };
+    up.max(back)
+}
