@@ -580,12 +580,8 @@ pub fn quantize_deadzone(coef: &[f64], dims: &[usize], step: f64, deadzone: f64)
     if deadzone <= 0.5 {
         return dct::quantize(coef, dims, step);
     }
-    let t = deadzone * step;
-    let z: Vec<f64> = coef
-        .iter()
-        .map(|&c| if c.abs() < t { 0.0 } else { c })
-        .collect();
-    dct::quantize(&z, dims, step)
+    // Zeroing below the dead zone and quantizing in one pass: a zero quantizes to 0 anyway.
+    dct::quantize_above(coef, dims, step, deadzone * step)
 }
 
 /// Every component quantized with its step and the dead zone.
