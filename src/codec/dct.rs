@@ -95,10 +95,14 @@ where
 
 /// Full forward DCT of one plane (parallel: the encoder's cost).
 pub fn forward(plane: &[f64], dims: &[usize]) -> Vec<f64> {
+    // Two arrays used in turn: a fresh one per axis cost page faults on every pass (134 MB
+    // per component on a halfdiff4:64 table, several forward transforms per search trial).
     let mut cur = plane.to_vec();
+    let mut next = Vec::new();
     for a in 0..dims.len() {
         let mat = dct_matrix(dims[a]);
-        cur = apply_axis_f64(&cur, dims, a, &mat, dims[a]);
+        apply_axis_f64_into(&cur, dims, a, &mat, dims[a], &mut next);
+        std::mem::swap(&mut cur, &mut next);
     }
     cur
 }
@@ -122,14 +126,29 @@ pub(crate) fn apply_axis_f64(
     mat: &[f64],
     m: usize,
 ) -> Vec<f64> {
+    let mut out = Vec::new();
+    apply_axis_f64_into(input, dims, axis, mat, m, &mut out);
+    out
+}
+
+/// [`apply_axis_f64`] into `out`, resized to the output's length (every element is written,
+/// so a reused array's old values do not matter).
+pub(crate) fn apply_axis_f64_into(
+    input: &[f64],
+    dims: &[usize],
+    axis: usize,
+    mat: &[f64],
+    m: usize,
+    out: &mut Vec<f64>,
+) {
     let n = dims[axis];
     let outer: usize = dims[..axis].iter().product();
     let inner: usize = dims[axis + 1..].iter().product();
     debug_assert_eq!(input.len(), outer * n * inner);
     debug_assert_eq!(mat.len(), m * n);
-    let mut out = vec![0.0; outer * m * inner];
+    out.resize(outer * m * inner, 0.0);
     if out.is_empty() {
-        return out;
+        return;
     }
     if inner == 1 {
         // Contiguous lines: LANES lines side by side, transposed so that one load holds the
@@ -149,7 +168,7 @@ pub(crate) fn apply_axis_f64(
                 lines_block(mat, n, m, t, lines, dst);
             },
         );
-        return out;
+        return;
     }
     // Strided axis: a tile is TILE columns of one outer block, all m output rows, computed
     // into a per-worker buffer and copied into `out` by the same worker. (Collecting the
@@ -178,7 +197,6 @@ pub(crate) fn apply_axis_f64(
             }
         },
     );
-    out
 }
 
 /// The output array of [`apply_axis_f64`] shared by the workers that fill disjoint parts of it.
