@@ -329,13 +329,7 @@ impl BoxWalk {
 
     #[inline]
     fn advance(&mut self) {
-        for a in (0..self.idx.len()).rev() {
-            self.idx[a] += 1;
-            if self.idx[a] < self.extent[a] {
-                return;
-            }
-            self.idx[a] = 0;
-        }
+        dct::advance(&mut self.idx, &self.extent);
     }
 }
 

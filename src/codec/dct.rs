@@ -375,11 +375,18 @@ pub(crate) fn quantize_above(
             }
         })
         .collect();
+    if d == 0 {
+        // A single value: a box of no axes holding it.
+        return Coefficients {
+            extent: vec![],
+            codes: q,
+        };
+    }
     let empty = || Coefficients {
         extent: vec![0; d],
         codes: vec![],
     };
-    if d == 0 || q.is_empty() {
+    if q.is_empty() {
         return empty();
     }
     let len = dims[d - 1];
@@ -410,7 +417,7 @@ pub(crate) fn quantize_above(
 }
 
 /// The next multi-index in C order within `extent` (wrapping to all zeros after the last).
-fn advance(idx: &mut [usize], extent: &[usize]) {
+pub(crate) fn advance(idx: &mut [usize], extent: &[usize]) {
     for a in (0..idx.len()).rev() {
         idx[a] += 1;
         if idx[a] < extent[a] {

@@ -378,7 +378,7 @@ fn final_pass<const C: usize>(
             );
         }
     } else {
-        let mut blocks = vec![0f32; C * n * FINAL_WIDE];
+        let mut blocks = vec![0f32; C * n * WIDE];
         let mut evens: Vec<Vec<usize>> = vec![Vec::new(); C];
         let mut odds: Vec<Vec<usize>> = vec![Vec::new(); C];
         for o in 0..outer {
@@ -398,9 +398,9 @@ fn final_pass<const C: usize>(
                 valid,
             };
             let mut x0 = 0;
-            while x0 + FINAL_WIDE <= inner {
-                t.run::<C, FINAL_WIDE>(x0, &mut blocks, out);
-                x0 += FINAL_WIDE;
+            while x0 + WIDE <= inner {
+                t.run::<C, WIDE>(x0, &mut blocks, out);
+                x0 += WIDE;
             }
             while x0 + 8 <= inner {
                 t.run::<C, 8>(x0, &mut blocks, out);
@@ -422,7 +422,6 @@ fn final_pass<const C: usize>(
 
 /// Lines per tile of the strided kernels.
 const WIDE: usize = 32;
-const FINAL_WIDE: usize = 32;
 
 /// What one tile of the fused last pass reads.
 struct FinalTile<'a> {
@@ -875,40 +874,11 @@ fn strided_tile<const T: usize>(
         });
         j += 2;
     }
+    // The last output when h is odd, one at a time.
     for j in j..b.h {
-        let mut te = [0f32; T];
-        let mut to = [0f32; T];
-        for &k in even {
-            let w = b.rows[k * b.hp + j];
-            let v: &[f32; T] = s[k * inner + x0..k * inner + x0 + T]
-                .try_into()
-                .expect("tile inside the line");
-            for l in 0..T {
-                te[l] += w * v[l];
-            }
-        }
-        for &k in odd {
-            let w = b.rows[k * b.hp + j];
-            let v: &[f32; T] = s[k * inner + x0..k * inner + x0 + T]
-                .try_into()
-                .expect("tile inside the line");
-            for l in 0..T {
-                to[l] += w * v[l];
-            }
-        }
-        let lo = j * dstride + dx;
-        let dl: &mut [f32; T] = (&mut d[lo..lo + T]).try_into().expect("a tile");
-        for l in 0..T {
-            dl[l] = te[l] + to[l];
-        }
-        let m = b.n - 1 - j;
-        if m != j {
-            let hi = m * dstride + dx;
-            let dh: &mut [f32; T] = (&mut d[hi..hi + T]).try_into().expect("a tile");
-            for l in 0..T {
-                dh[l] = te[l] - to[l];
-            }
-        }
+        outputs::<T, 1>(s, d, inner, x0, b, even, odd, dstride, dx, j, |k| {
+            [b.rows[k * b.hp + j]]
+        });
     }
 }
 
