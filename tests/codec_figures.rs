@@ -491,7 +491,7 @@ fn figures_gold_codes() {
     let payload = spec.encode(&t).unwrap();
     let n = [90usize, 90, 180];
     let cells = (n[0] * n[1] * n[2]) as f64;
-    let comps = coefcode::decode(&payload, &n, 3).unwrap();
+    let comps = coefcode::decode(&payload, &n, 3, coefcode::ContextModel::LineEnds).unwrap();
     let orders: Vec<[usize; 3]> = vec![
         [0, 1, 2],
         [0, 2, 1],
@@ -696,4 +696,44 @@ fn l_neighbour(len: &[usize], e1: usize, i0: usize, i1: usize) -> usize {
     let up = if i1 > 0 { len[i0 * e1 + i1 - 1] } else { 0 };
     let back = if i0 > 0 { len[(i0 - 1) * e1 + i1] } else { 0 };
     up.max(back)
+}
+
+/// EXPERIMENT: stream sizes of the budget rows' coefficients under each line scheme.
+#[test]
+#[ignore]
+fn figures_line_schemes() {
+    use brdfpack::codec::coefcode::{self, ContextModel};
+    let mut cases: Vec<(String, Table, &str)> = vec![
+        ("ggx preview".into(), testdata::ggx_merl(0.2), "dct:eps=0.001,step=24.2,refine=4"),
+        ("ggx production".into(), testdata::ggx_merl(0.2), "dct:eps=0.001,step=1.31,refine=4"),
+    ];
+    if let Some(t) = testdata::shared_merl("gold-metallic-paint") {
+        cases.push(("gold preview".into(), t.clone(), "dct:eps=0.001,step=5.35,deadzone=0.6"));
+        cases.push(("gold production".into(), t, "dct:eps=0.001,step=0.316,refine=4"));
+    }
+    if let Some(t) = testdata::shared_merl("white-diffuse-bball") {
+        cases.push(("white preview".into(), t.clone(), "dct:eps=0.001,step=37.8,deadzone=0.6"));
+        cases.push(("white production".into(), t, "dct:eps=0.001,step=1.26,refine=4"));
+    }
+    let g = parse_grid_spec("halfdiff4:64").unwrap();
+    let src = testdata::WardAniso::new(0.05, 0.1, 0.1, 0.3);
+    let w = tabulate(&src, &g, &Default::default()).unwrap();
+    cases.push(("ward production".into(), w, "dct:eps=0.01,step=3.86,refine=4"));
+    let mut tot = [0usize; 3];
+    for (name, t, s) in &cases {
+        let spec = CodecRequest::parse(s).unwrap().resolve(t).unwrap();
+        let payload = spec.encode(t).unwrap();
+        let layout = Layout::of(t);
+        let dims = layout.grid.shape();
+        let c = layout.channels;
+        let comps = coefcode::decode(&payload, &dims, c, ContextModel::LineEnds).unwrap();
+        let old = coefcode::encode_model(&comps, ContextModel::EveryPosition).len();
+        let a = coefcode::encode_model(&comps, ContextModel::LineEnds).len();
+        let b = coefcode::encode_last_flags(&comps).len() + comps.len() * dims.len();
+        tot[0] += old;
+        tot[1] += a;
+        tot[2] += b;
+        println!("SCHEMES {name}: old {old} B, (a) line ends {a} B, (b) last flags ~{b} B");
+    }
+    println!("SCHEMES total: old {} B, (a) {} B, (b) {} B", tot[0], tot[1], tot[2]);
 }

@@ -24,6 +24,35 @@ use serde::{Deserialize, Serialize};
 pub struct ContextCoding {
     /// Dead zone in steps: coefficients with |c| < deadzone × step are coded as 0.
     pub deadzone: f64,
+    /// How the stream is laid out. Headers written before the field existed lack it and are
+    /// the first model ([`ContextModel::EveryPosition`]).
+    #[serde(default)]
+    pub model: ContextModel,
+}
+
+/// The layout of the range-coded stream (the contexts of the coded positions are the same in
+/// both).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContextModel {
+    /// Every position of every box coded (files written before line ends).
+    #[default]
+    EveryPosition,
+    /// Each line along the last axis first codes where it ends; positions after its last
+    /// nonzero are not coded (they are zero), the last one's zero flag is implied.
+    LineEnds,
+}
+
+impl ContextModel {
+    /// The first byte of the range-coded stream. The range encoder always writes 0 there, so
+    /// the byte is free to name the model: a reader that predates line ends refuses the
+    /// stream ("bad range coder preamble") instead of decoding it with the wrong model.
+    fn preamble(self) -> u8 {
+        match self {
+            ContextModel::EveryPosition => 0,
+            ContextModel::LineEnds => 1,
+        }
+    }
 }
 
 /// Default dead zone (steps): a little more than rounding's 0.5 trades a small error for many
@@ -33,6 +62,14 @@ pub const DEFAULT_DEADZONE: f64 = 0.75;
 pub const DEADZONE_RANGE: (f64, f64) = (0.5, 4.0);
 
 impl ContextCoding {
+    /// Context coding with dead zone `deadzone` in the current model (what new files use).
+    pub fn new(deadzone: f64) -> ContextCoding {
+        ContextCoding {
+            deadzone,
+            model: ContextModel::LineEnds,
+        }
+    }
+
     pub fn validate(&self) -> Result<()> {
         let (lo, hi) = DEADZONE_RANGE;
         if !(lo..=hi).contains(&self.deadzone) {
@@ -179,7 +216,12 @@ pub struct RangeDecoder<'a> {
 
 impl<'a> RangeDecoder<'a> {
     pub fn new(input: &'a [u8]) -> Result<RangeDecoder<'a>> {
-        if input.len() < 5 || input[0] != 0 {
+        Self::with_preamble(input, 0)
+    }
+
+    /// A decoder of a stream whose first byte is `preamble` (see [`ContextModel::preamble`]).
+    fn with_preamble(input: &'a [u8], preamble: u8) -> Result<RangeDecoder<'a>> {
+        if input.len() < 5 || input[0] != preamble {
             return Err(Error::input(
                 "context-coded DCT stream: missing or bad range coder preamble",
             ));
@@ -267,6 +309,7 @@ struct Model {
     sign: Vec<Ctx>,
     unary: Vec<Ctx>,
     mantissa: Vec<Ctx>,
+    line: LineModel,
 }
 
 impl Model {
@@ -276,7 +319,199 @@ impl Model {
             sign: vec![Ctx::default(); COMP_CLASSES * 9],
             unary: vec![Ctx::default(); COMP_CLASSES * NBR_BUCKETS * UNARY_POS],
             mantissa: vec![Ctx::default(); COMP_CLASSES * (MAX_EXP as usize + 1)],
+            line: LineModel::new(),
         }
+    }
+}
+
+/// Line-end model sizes: the states of the neighbouring lines (the one a step back along the
+/// last-but-one axis, "up", and those a step back along the other axes, "back": each missing,
+/// empty or not), the buckets of the predicted end, the unary positions of an end's exponent.
+const LINE_STATES: usize = 9;
+const END_BUCKETS: usize = 8;
+const END_UNARY: usize = 16;
+/// Largest exponent of an end difference's exp-Golomb code the decoder accepts: 2^40 is far
+/// beyond any extent, and keeps the arithmetic in u64.
+const MAX_END_EXP: u32 = 40;
+/// The three exp-Golomb codes of a line end: no nonempty neighbour (end − 1), longer than the
+/// prediction (end − pred − 1), shorter (pred − end − 1).
+const FRESH: usize = 0;
+const LONGER: usize = 1;
+const SHORTER: usize = 2;
+
+/// The contexts of the line ends.
+struct LineModel {
+    empty: Vec<Ctx>,
+    same: Vec<Ctx>,
+    longer: Vec<Ctx>,
+    unary: Vec<Ctx>,
+    mantissa: Vec<Ctx>,
+}
+
+impl LineModel {
+    fn new() -> LineModel {
+        LineModel {
+            empty: vec![Ctx::default(); COMP_CLASSES * LINE_STATES],
+            same: vec![Ctx::default(); COMP_CLASSES * END_BUCKETS],
+            longer: vec![Ctx::default(); COMP_CLASSES * END_BUCKETS],
+            unary: vec![Ctx::default(); COMP_CLASSES * 3 * END_UNARY],
+            mantissa: vec![Ctx::default(); COMP_CLASSES * 3 * (MAX_END_EXP as usize + 1)],
+        }
+    }
+}
+
+/// What a line's end is coded with: the neighbour state (context of the empty flag) and the
+/// prediction, the largest end of the neighbouring lines (0: none is nonempty).
+#[derive(Clone, Copy, Debug)]
+struct LineNbrs {
+    state: usize,
+    pred: usize,
+}
+
+impl LineNbrs {
+    /// From the ends of the "up" and "back" neighbours (`None`: no such line).
+    #[inline]
+    fn new(up: Option<u32>, back: Option<u32>) -> LineNbrs {
+        let st = |e: Option<u32>| e.map_or(0, |e| 1 + (e > 0) as usize);
+        LineNbrs {
+            state: st(up) * 3 + st(back),
+            pred: up.unwrap_or(0).max(back.unwrap_or(0)) as usize,
+        }
+    }
+
+    /// The neighbours of line `r` at outer index `outer` (the box's index without its last
+    /// axis; `strides` in lines), from the ends of the lines before it.
+    fn generic(outer: &[usize], strides: &[usize], r: usize, ends: &[u32]) -> LineNbrs {
+        let k = outer.len();
+        let up = (k >= 1 && outer[k - 1] > 0).then(|| ends[r - strides[k - 1]]);
+        let back = (0..k.saturating_sub(1))
+            .filter(|&a| outer[a] > 0)
+            .map(|a| ends[r - strides[a]])
+            .max();
+        LineNbrs::new(up, back)
+    }
+}
+
+/// ⌊log2 pred⌋ capped (pred ≥ 1).
+#[inline]
+fn end_bucket(pred: usize) -> usize {
+    (pred.ilog2() as usize).min(END_BUCKETS - 1)
+}
+
+impl LineModel {
+    /// `v` ≥ 0 as exp-Golomb (v + 1: unary exponent with contexts, the leading mantissa bit
+    /// with a context, the rest at ½) in the code `kind` of component class `cc`.
+    fn encode_eg(&mut self, rc: &mut RangeEncoder, cc: usize, kind: usize, v: u64) {
+        let v = v + 1;
+        let e = v.ilog2();
+        let base = cc * 3 + kind;
+        for i in 0..=e {
+            let ctx = &mut self.unary[base * END_UNARY + (i as usize).min(END_UNARY - 1)];
+            rc.encode(ctx, i < e);
+        }
+        if e > 0 {
+            let top = (v >> (e - 1)) & 1 == 1;
+            rc.encode(
+                &mut self.mantissa[base * (MAX_END_EXP as usize + 1) + e as usize],
+                top,
+            );
+            for k in (0..e - 1).rev() {
+                rc.encode_direct((v >> k) & 1 == 1);
+            }
+        }
+    }
+
+    fn decode_eg(&mut self, rc: &mut RangeDecoder, cc: usize, kind: usize) -> Result<u64> {
+        let base = cc * 3 + kind;
+        let mut e = 0u32;
+        while rc.decode(&mut self.unary[base * END_UNARY + (e as usize).min(END_UNARY - 1)]) {
+            e += 1;
+            if e > MAX_END_EXP {
+                return Err(Error::input(
+                    "context-coded DCT stream: line end beyond 2^40",
+                ));
+            }
+        }
+        let mut v: u64 = 1;
+        if e > 0 {
+            let top =
+                rc.decode(&mut self.mantissa[base * (MAX_END_EXP as usize + 1) + e as usize]);
+            v = (v << 1) | top as u64;
+            for _ in 0..e - 1 {
+                v = (v << 1) | rc.decode_direct() as u64;
+            }
+        }
+        Ok(v - 1)
+    }
+
+    /// A line's end (1 + the position of its last nonzero, 0 for an empty line) of a line of
+    /// `n` positions: an empty flag, then the end relative to the prediction.
+    fn encode_end(&mut self, rc: &mut RangeEncoder, cc: usize, nb: LineNbrs, end: usize, n: usize) {
+        rc.encode(&mut self.empty[cc * LINE_STATES + nb.state], end == 0);
+        if end == 0 {
+            return;
+        }
+        let p = nb.pred;
+        if p == 0 {
+            self.encode_eg(rc, cc, FRESH, (end - 1) as u64);
+            return;
+        }
+        let pb = cc * END_BUCKETS + end_bucket(p);
+        rc.encode(&mut self.same[pb], end != p);
+        if end == p {
+            return;
+        }
+        let longer = end > p;
+        // Only one direction is possible at either side of the extent.
+        if p > 1 && p < n {
+            rc.encode(&mut self.longer[pb], longer);
+        }
+        if longer {
+            self.encode_eg(rc, cc, LONGER, (end - p - 1) as u64);
+        } else {
+            self.encode_eg(rc, cc, SHORTER, (p - end - 1) as u64);
+        }
+    }
+
+    /// Inverse of [`LineModel::encode_end`]; an end outside 0..=n is an error.
+    #[inline]
+    fn decode_end(
+        &mut self,
+        rc: &mut RangeDecoder,
+        cc: usize,
+        nb: LineNbrs,
+        n: usize,
+    ) -> Result<usize> {
+        if rc.decode(&mut self.empty[cc * LINE_STATES + nb.state]) {
+            return Ok(0);
+        }
+        let p = nb.pred as u64;
+        let end = if p == 0 {
+            self.decode_eg(rc, cc, FRESH)? + 1
+        } else {
+            let pb = cc * END_BUCKETS + end_bucket(nb.pred);
+            if !rc.decode(&mut self.same[pb]) {
+                p
+            } else {
+                let longer = if p > 1 && p < n as u64 {
+                    rc.decode(&mut self.longer[pb])
+                } else {
+                    p == 1
+                };
+                if longer {
+                    p + 1 + self.decode_eg(rc, cc, LONGER)?
+                } else {
+                    // 0 (out of range below) when the difference is too large.
+                    p.saturating_sub(1 + self.decode_eg(rc, cc, SHORTER)?)
+                }
+            }
+        };
+        if end == 0 || end > n as u64 {
+            return Err(Error::input(format!(
+                "context-coded DCT stream: line end {end} outside 1..={n}"
+            )));
+        }
+        Ok(end as usize)
     }
 }
 
@@ -333,36 +568,124 @@ impl BoxWalk {
     }
 }
 
+/// The zero-flag context index of component class `cc`, band and neighbour bucket.
+#[inline]
+fn zero_index(cc: usize, band: usize, nb: usize) -> usize {
+    (cc * BANDS + band) * NBR_BUCKETS + nb
+}
+
+/// The sign and magnitude of a nonzero `q` (`decode_nonzero` reads them).
+fn encode_nonzero(
+    rc: &mut RangeEncoder,
+    model: &mut Model,
+    cc: usize,
+    nb: usize,
+    signs: usize,
+    q: i32,
+) {
+    rc.encode(&mut model.sign[cc * 9 + signs], q < 0);
+    // |q| ≥ 1 as exp-Golomb: e = ⌊log2 |q|⌋ in unary, then the e bits below the
+    // leading one (the first with a context, the rest at ½).
+    let v = q.unsigned_abs() as u64;
+    let e = 63 - v.leading_zeros();
+    for i in 0..=e {
+        let ctx =
+            &mut model.unary[(cc * NBR_BUCKETS + nb) * UNARY_POS + (i as usize).min(UNARY_POS - 1)];
+        rc.encode(ctx, i < e);
+    }
+    if e > 0 {
+        let top = (v >> (e - 1)) & 1 == 1;
+        rc.encode(
+            &mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize],
+            top,
+        );
+        for k in (0..e - 1).rev() {
+            rc.encode_direct((v >> k) & 1 == 1);
+        }
+    }
+}
+
+/// The first model: every position of the box.
 fn encode_component(rc: &mut RangeEncoder, model: &mut Model, comp: usize, c: &Coefficients) {
     let cc = comp.min(COMP_CLASSES - 1);
     let mut walk = BoxWalk::new(&c.extent);
     for (b, &q) in c.codes.iter().enumerate() {
         let (band, nb, signs) = walk.context(&c.codes, b);
-        let zc = &mut model.zero[(cc * BANDS + band) * NBR_BUCKETS + nb];
-        rc.encode(zc, q != 0);
+        rc.encode(&mut model.zero[zero_index(cc, band, nb)], q != 0);
         if q != 0 {
-            rc.encode(&mut model.sign[cc * 9 + signs], q < 0);
-            // |q| ≥ 1 as exp-Golomb: e = ⌊log2 |q|⌋ in unary, then the e bits below the
-            // leading one (the first with a context, the rest at ½).
-            let v = q.unsigned_abs() as u64;
-            let e = 63 - v.leading_zeros();
-            for i in 0..=e {
-                let ctx = &mut model.unary
-                    [(cc * NBR_BUCKETS + nb) * UNARY_POS + (i as usize).min(UNARY_POS - 1)];
-                rc.encode(ctx, i < e);
-            }
-            if e > 0 {
-                let top = (v >> (e - 1)) & 1 == 1;
-                rc.encode(
-                    &mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize],
-                    top,
-                );
-                for k in (0..e - 1).rev() {
-                    rc.encode_direct((v >> k) & 1 == 1);
-                }
-            }
+            encode_nonzero(rc, model, cc, nb, signs, q);
         }
         walk.advance();
+    }
+}
+
+/// The lines of a box along its last axis: their count, length and the strides (in lines) of
+/// the other axes. A box without axes is one line of one position.
+struct LineGrid {
+    outer_extent: Vec<usize>,
+    strides: Vec<usize>,
+    count: usize,
+    n: usize,
+}
+
+impl LineGrid {
+    fn new(extent: &[usize], total: usize) -> LineGrid {
+        let d = extent.len();
+        let n = extent.last().copied().unwrap_or(1);
+        let outer_extent = extent[..d.saturating_sub(1)].to_vec();
+        let k = outer_extent.len();
+        let mut strides = vec![1usize; k];
+        for a in (0..k.saturating_sub(1)).rev() {
+            strides[a] = strides[a + 1] * outer_extent[a + 1];
+        }
+        LineGrid {
+            outer_extent,
+            strides,
+            count: if total == 0 { 0 } else { total / n },
+            n,
+        }
+    }
+}
+
+/// The line-end model: per line (C order) its end, then the positions up to it.
+fn encode_component_lines(
+    rc: &mut RangeEncoder,
+    model: &mut Model,
+    comp: usize,
+    c: &Coefficients,
+) {
+    let cc = comp.min(COMP_CLASSES - 1);
+    let grid = LineGrid::new(&c.extent, c.codes.len());
+    let n = grid.n;
+    let d = c.extent.len();
+    let mut outer = vec![0usize; grid.outer_extent.len()];
+    let mut ends = vec![0u32; grid.count];
+    let mut walk = BoxWalk::new(&c.extent);
+    for r in 0..grid.count {
+        let end = c.codes[r * n..(r + 1) * n]
+            .iter()
+            .rposition(|&q| q != 0)
+            .map_or(0, |i| i + 1);
+        let nbrs = LineNbrs::generic(&outer, &grid.strides, r, &ends);
+        model.line.encode_end(rc, cc, nbrs, end, n);
+        ends[r] = end as u32;
+        walk.idx[..outer.len()].copy_from_slice(&outer);
+        for i in 0..end {
+            if d > 0 {
+                walk.idx[d - 1] = i;
+            }
+            let b = r * n + i;
+            let q = c.codes[b];
+            let (band, nb, signs) = walk.context(&c.codes, b);
+            // The last position's flag is implied: it ends the line, so it is nonzero.
+            if i + 1 < end {
+                rc.encode(&mut model.zero[zero_index(cc, band, nb)], q != 0);
+            }
+            if q != 0 {
+                encode_nonzero(rc, model, cc, nb, signs, q);
+            }
+        }
+        dct::advance(&mut outer, &grid.outer_extent);
     }
 }
 
@@ -371,6 +694,7 @@ fn decode_component(
     model: &mut Model,
     comp: usize,
     extent: Vec<usize>,
+    lines: bool,
     scratch: &mut DecodeScratch,
 ) -> Result<Coefficients> {
     let cc = comp.min(COMP_CLASSES - 1);
@@ -381,16 +705,46 @@ fn decode_component(
     };
     let mut codes = scratch.take_i32_zeroed(total);
     if extent.len() == 3 && total > 0 {
-        decode_box_3d(rc, model, cc, [extent[0], extent[1], extent[2]], &mut codes)?;
+        let e = [extent[0], extent[1], extent[2]];
+        if lines {
+            decode_lines_3d(rc, model, cc, e, &mut codes)?;
+        } else {
+            decode_box_3d(rc, model, cc, e, &mut codes)?;
+        }
         return Ok(Coefficients { extent, codes });
     }
     let mut walk = BoxWalk::new(&extent);
-    for b in 0..total {
-        let (band, nb, signs) = walk.context(&codes, b);
-        if rc.decode(&mut model.zero[(cc * BANDS + band) * NBR_BUCKETS + nb]) {
-            codes[b] = decode_nonzero(rc, model, cc, nb, signs)?;
+    if !lines {
+        for b in 0..total {
+            let (band, nb, signs) = walk.context(&codes, b);
+            if rc.decode(&mut model.zero[zero_index(cc, band, nb)]) {
+                codes[b] = decode_nonzero(rc, model, cc, nb, signs)?;
+            }
+            walk.advance();
         }
-        walk.advance();
+        return Ok(Coefficients { extent, codes });
+    }
+    let grid = LineGrid::new(&extent, total);
+    let n = grid.n;
+    let d = extent.len();
+    let mut outer = vec![0usize; grid.outer_extent.len()];
+    let mut ends = vec![0u32; grid.count];
+    for r in 0..grid.count {
+        let nbrs = LineNbrs::generic(&outer, &grid.strides, r, &ends);
+        let end = model.line.decode_end(rc, cc, nbrs, n)?;
+        ends[r] = end as u32;
+        walk.idx[..outer.len()].copy_from_slice(&outer);
+        for i in 0..end {
+            if d > 0 {
+                walk.idx[d - 1] = i;
+            }
+            let b = r * n + i;
+            let (band, nb, signs) = walk.context(&codes, b);
+            if i + 1 == end || rc.decode(&mut model.zero[zero_index(cc, band, nb)]) {
+                codes[b] = decode_nonzero(rc, model, cc, nb, signs)?;
+            }
+        }
+        dct::advance(&mut outer, &grid.outer_extent);
     }
     Ok(Coefficients { extent, codes })
 }
@@ -507,6 +861,76 @@ fn decode_box_3d(
     Ok(())
 }
 
+/// The line-end model's 3-D box: the incremental contexts of [`decode_box_3d`], visiting only
+/// the positions up to each line's end (the rest of the box stays zero).
+fn decode_lines_3d(
+    rc: &mut RangeDecoder,
+    model: &mut Model,
+    cc: usize,
+    [e0, e1, e2]: [usize; 3],
+    codes: &mut [i32],
+) -> Result<()> {
+    let s0 = e1 * e2;
+    let zero_range = cc * BANDS * NBR_BUCKETS..(cc + 1) * BANDS * NBR_BUCKETS;
+    let mut zero_ctx = model.zero[zero_range.clone()].to_vec();
+    let band_offset: Vec<usize> = (0..e0 + e1 + e2)
+        .map(|sum| ((usize::BITS - (sum + 1).leading_zeros() - 1) as usize).min(BANDS - 1))
+        .map(|band| band * NBR_BUCKETS)
+        .collect();
+    let zeros = vec![0i32; e2];
+    let mut ends = vec![0u32; e0 * e1];
+    for i0 in 0..e0 {
+        for i1 in 0..e1 {
+            let r = i0 * e1 + i1;
+            let nbrs = LineNbrs::new(
+                (i1 > 0).then(|| ends[r - 1]),
+                (i0 > 0).then(|| ends[r - e1]),
+            );
+            let end = model.line.decode_end(rc, cc, nbrs, e2)?;
+            ends[r] = end as u32;
+            if end == 0 {
+                continue;
+            }
+            let row = r * e2;
+            let (before, rest) = codes.split_at_mut(row);
+            let cur = &mut rest[..end];
+            // Neighbours past their own line's end read 0 from the zeroed array, as in the
+            // encoder (they are zero).
+            let up = if i1 > 0 {
+                &before[row - e2..row - e2 + end]
+            } else {
+                &zeros[..end]
+            };
+            let back = if i0 > 0 {
+                &before[row - s0..row - s0 + end]
+            } else {
+                &zeros[..end]
+            };
+            let offsets = &band_offset[i0 + i1..i0 + i1 + end];
+            let mut left = 0i32;
+            for i2 in 0..end {
+                // As in `decode_box_3d`: no overflow in u64, sums from 257 up are bucket 8.
+                let m = left.unsigned_abs() as u64
+                    + up[i2].unsigned_abs() as u64
+                    + back[i2].unsigned_abs() as u64;
+                let nb = if m < 257 {
+                    NBR_LUT[m as usize] as usize
+                } else {
+                    8
+                };
+                // The line's last position is nonzero without a flag.
+                if i2 + 1 == end || rc.decode(&mut zero_ctx[offsets[i2] + nb]) {
+                    let signs = (left.signum() + 1) as usize * 3 + (back[i2].signum() + 1) as usize;
+                    cur[i2] = decode_nonzero(rc, model, cc, nb, signs)?;
+                }
+                left = cur[i2];
+            }
+        }
+    }
+    model.zero[zero_range].copy_from_slice(&zero_ctx);
+    Ok(())
+}
+
 fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     while v >= 0x80 {
         out.push((v as u8) | 0x80);
@@ -515,9 +939,14 @@ fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     out.push(v as u8);
 }
 
-/// The payload: every component's box extents (varints), then one range-coded stream of every
-/// component's codes.
+/// The payload in the current model ([`ContextModel::LineEnds`]).
 pub fn encode(comps: &[Coefficients]) -> Vec<u8> {
+    encode_model(comps, ContextModel::LineEnds)
+}
+
+/// The payload: every component's box extents (varints), then one range-coded stream of every
+/// component's codes in `model`, its first byte naming the model.
+pub fn encode_model(comps: &[Coefficients], model: ContextModel) -> Vec<u8> {
     let mut out = Vec::new();
     for c in comps {
         for &e in &c.extent {
@@ -525,17 +954,29 @@ pub fn encode(comps: &[Coefficients]) -> Vec<u8> {
         }
     }
     let mut rc = RangeEncoder::new();
-    let mut model = Model::new();
+    let mut m = Model::new();
     for (k, c) in comps.iter().enumerate() {
-        encode_component(&mut rc, &mut model, k, c);
+        match model {
+            ContextModel::EveryPosition => encode_component(&mut rc, &mut m, k, c),
+            ContextModel::LineEnds => encode_component_lines(&mut rc, &mut m, k, c),
+        }
     }
-    out.extend(rc.finish());
+    let mut stream = rc.finish();
+    // The encoder's interval never leaves [0, 1) of the initial range: its first byte is 0.
+    debug_assert_eq!(stream[0], 0);
+    stream[0] = model.preamble();
+    out.extend(stream);
     out
 }
 
-/// Inverse of [`encode`], checking every extent against the grid `dims`.
-pub fn decode(payload: &[u8], dims: &[usize], components: usize) -> Result<Vec<Coefficients>> {
-    decode_with(payload, dims, components, &mut DecodeScratch::default())
+/// Inverse of [`encode_model`], checking every extent against the grid `dims`.
+pub fn decode(
+    payload: &[u8],
+    dims: &[usize],
+    components: usize,
+    model: ContextModel,
+) -> Result<Vec<Coefficients>> {
+    decode_with(payload, dims, components, model, &mut DecodeScratch::default())
 }
 
 /// [`decode`] with the code arrays taken from `scratch`.
@@ -543,6 +984,7 @@ pub(crate) fn decode_with(
     payload: &[u8],
     dims: &[usize],
     components: usize,
+    model: ContextModel,
     scratch: &mut DecodeScratch,
 ) -> Result<Vec<Coefficients>> {
     let mut pos = 0;
@@ -553,11 +995,12 @@ pub(crate) fn decode_with(
         components,
         "context-coded DCT stream",
     )?;
-    let mut rc = RangeDecoder::new(&payload[pos..])?;
-    let mut model = Model::new();
+    let mut rc = RangeDecoder::with_preamble(&payload[pos..], model.preamble())?;
+    let mut m = Model::new();
+    let lines = model == ContextModel::LineEnds;
     let mut out = Vec::with_capacity(components);
     for (k, extent) in extents.into_iter().enumerate() {
-        out.push(decode_component(&mut rc, &mut model, k, extent, scratch)?);
+        out.push(decode_component(&mut rc, &mut m, k, extent, lines, scratch)?);
     }
     if !rc.within_input() {
         return Err(Error::input(
@@ -565,6 +1008,62 @@ pub(crate) fn decode_with(
         ));
     }
     Ok(out)
+}
+
+/// EXPERIMENT (scheme b): a "last in line" flag after each nonzero instead of coded ends.
+#[doc(hidden)]
+pub fn encode_last_flags(comps: &[Coefficients]) -> Vec<u8> {
+    let mut rc = RangeEncoder::new();
+    let mut model = Model::new();
+    let mut last = vec![Ctx::default(); COMP_CLASSES * 8 * 3];
+    for (comp, c) in comps.iter().enumerate() {
+        let cc = comp.min(COMP_CLASSES - 1);
+        let grid = LineGrid::new(&c.extent, c.codes.len());
+        let n = grid.n;
+        let d = c.extent.len();
+        let mut outer = vec![0usize; grid.outer_extent.len()];
+        let mut ends = vec![0u32; grid.count];
+        let mut walk = BoxWalk::new(&c.extent);
+        for r in 0..grid.count {
+            let end = c.codes[r * n..(r + 1) * n]
+                .iter()
+                .rposition(|&q| q != 0)
+                .map_or(0, |i| i + 1);
+            let nbrs = LineNbrs::generic(&outer, &grid.strides, r, &ends);
+            rc.encode(&mut model.line.empty[cc * LINE_STATES + nbrs.state], end == 0);
+            // Neighbour ends for the "extends past p" context.
+            let k = outer.len();
+            let mut nb_ends = Vec::new();
+            for a in 0..k {
+                if outer[a] > 0 {
+                    nb_ends.push(ends[r - grid.strides[a]] as usize);
+                }
+            }
+            ends[r] = end as u32;
+            walk.idx[..outer.len()].copy_from_slice(&outer);
+            for i in 0..end {
+                if d > 0 {
+                    walk.idx[d - 1] = i;
+                }
+                let b = r * n + i;
+                let q = c.codes[b];
+                let (band, nb, signs) = walk.context(&c.codes, b);
+                if i + 1 < n {
+                    rc.encode(&mut model.zero[zero_index(cc, band, nb)], q != 0);
+                }
+                if q != 0 {
+                    encode_nonzero(&mut rc, &mut model, cc, nb, signs, q);
+                    if i + 1 < n {
+                        let ext = nb_ends.iter().filter(|&&e| e > i + 1).count().min(2);
+                        let pb = ((i + 1).ilog2() as usize).min(7);
+                        rc.encode(&mut last[(cc * 8 + pb) * 3 + ext], i + 1 == end);
+                    }
+                }
+            }
+            dct::advance(&mut outer, &grid.outer_extent);
+        }
+    }
+    rc.finish()
 }
 
 /// Dead-zone quantization: coefficients with |c| < `deadzone` × step become 0, the others are

@@ -491,12 +491,10 @@ impl CodecSpec {
                 for (p, &s) in coefs.iter().zip(&stage.step) {
                     dct::check_range(p, s)?;
                 }
-                Ok(coefcode::encode(&coefcode::quantize_all(
-                    &coefs,
-                    &dims,
-                    &stage.step,
-                    coding.deadzone,
-                )))
+                Ok(coefcode::encode_model(
+                    &coefcode::quantize_all(&coefs, &dims, &stage.step, coding.deadzone),
+                    coding.model,
+                ))
             }
             CodecSpec::Tucker {
                 transform,
@@ -626,9 +624,10 @@ impl CodecSpec {
             CodecSpec::DctContext {
                 transform,
                 dct: stage,
+                coding,
                 ..
             } => {
-                let comps = coefcode::decode_with(payload, &dims, c, scratch)?;
+                let comps = coefcode::decode_with(payload, &dims, c, coding.model, scratch)?;
                 let fin = simd::Finisher::new(transform, layout);
                 idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, out, scratch);
                 for q in comps {
@@ -735,8 +734,10 @@ impl CodecSpec {
                     .map(|(q, &s)| idct::inverse(q, &dims, s))
                     .collect())
             }
-            CodecSpec::DctContext { dct: stage, .. } => {
-                let comps = coefcode::decode(lossy, &dims, c)?;
+            CodecSpec::DctContext {
+                dct: stage, coding, ..
+            } => {
+                let comps = coefcode::decode(lossy, &dims, c, coding.model)?;
                 Ok(comps
                     .iter()
                     .zip(&stage.step)
@@ -1348,7 +1349,7 @@ impl CodecRequest {
                         },
                         transform,
                         dct,
-                        coding: coefcode::ContextCoding { deadzone },
+                        coding: coefcode::ContextCoding::new(deadzone),
                         residual,
                     },
                 }
@@ -2266,7 +2267,7 @@ mod tests {
                         ..
                     } = &mut bad
                     {
-                        *c = coefcode::ContextCoding { deadzone: dz };
+                        *c = coefcode::ContextCoding::new(dz);
                         *d = Domain::FillRefined { iterations: it };
                     }
                     assert!(bad.decode(&payload, &layout).is_err(), "{dz} {it}");

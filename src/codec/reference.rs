@@ -99,8 +99,10 @@ fn lossy_planes(spec: &CodecSpec, lossy: &[u8], layout: &Layout) -> Result<Vec<V
                 .map(|(q, &s)| dct_inverse(q, &dims, s))
                 .collect())
         }
-        CodecSpec::DctContext { dct: stage, .. } => {
-            let comps = super::coefcode::decode(lossy, &dims, c)?;
+        CodecSpec::DctContext {
+            dct: stage, coding, ..
+        } => {
+            let comps = super::coefcode::decode(lossy, &dims, c, coding.model)?;
             Ok(comps
                 .iter()
                 .zip(&stage.step)

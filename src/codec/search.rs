@@ -477,7 +477,7 @@ fn search_with(table: &Table, ev: &Evaluator, budget: &Budget, level: i32) -> Re
             dct: dct::DctStage {
                 step: vec![step; c],
             },
-            coding: ContextCoding { deadzone },
+            coding: ContextCoding::new(deadzone),
             residual: None,
         };
     // Phase 1: every ε at once.
