@@ -1,7 +1,9 @@
 //! Files written before context coding existed still decode unchanged, and the `coding=zstd`
-//! path still writes them (fixtures/codec/README.md says how the fixtures were made).
+//! path still writes them; files written in the context coder's first model (before line
+//! ends) still decode (fixtures/codec/README.md says how the fixtures were made).
 
 use brdfpack::codec::transform::Curve;
+use brdfpack::codec::coefcode::ContextModel;
 use brdfpack::codec::{CodecRequest, CodecSpec, Layout, reference};
 use brdfpack::io::native;
 use std::path::{Path, PathBuf};
@@ -128,4 +130,69 @@ fn old_headers_parse_unweighted_and_serialize_byte_for_byte() {
         );
         assert!(!json.contains("cosine"), "{name}");
     }
+}
+
+/// A `dct` file of the context coder's first model (every position coded, written by the main
+/// binary at efcdcd2, before line ends): its header has no `model` and reads as that model, it
+/// decodes to what the old binary decoded, the old model's encoder still writes its very
+/// payload, and today's `dct:step=0.01` (line ends) is smaller.
+#[test]
+fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
+    let (p, old) = fixture("ggx-dct-context-v1.bpk");
+    let header = native::read_header(&old, &p).unwrap();
+    let CodecSpec::DctContext {
+        transform, coding, ..
+    } = &header.codec
+    else {
+        panic!("{:?}", header.codec)
+    };
+    assert_eq!(coding.model, ContextModel::EveryPosition);
+    let eps = match &transform.curve {
+        Curve::Log { eps } => eps.clone(),
+        Curve::Linear => vec![0.0; 3],
+    };
+    let table = native::from_bytes(&old, &p).unwrap();
+    let (q, dec) = fixture("ggx-dct-context-v1-decoded.bpk");
+    let want = native::from_bytes(&dec, &q).unwrap();
+    assert_eq!(table.data().len(), 8 * 8 * 16 * 3);
+    // The same tolerance as the `dct` file above, for the same reason (the fast inverse DCT
+    // may change its summation order); the coefficients themselves are the old ones exactly,
+    // as the payload check below shows.
+    for (i, (a, b)) in table.data().iter().zip(want.data()).enumerate() {
+        let tol = 5e-5 * (b.abs() as f64 + eps[i % 3]);
+        assert!(
+            ((a - b) as f64).abs() <= tol,
+            "value {i}: {a} vs the old binary's {b}"
+        );
+    }
+    let (s, src) = fixture("ggx-lossless.bpk");
+    let source = native::from_bytes(&src, &s).unwrap();
+    let payload = header.codec.encode(&source).unwrap();
+    assert!(
+        old.windows(payload.len()).any(|w| w == payload),
+        "the first model's encoder no longer writes the old payload"
+    );
+    let now = CodecRequest::parse("dct:step=0.01")
+        .unwrap()
+        .resolve(&source)
+        .unwrap();
+    let CodecSpec::DctContext { coding, .. } = &now else {
+        panic!("{now:?}")
+    };
+    assert_eq!(coding.model, ContextModel::LineEnds);
+    let smaller = now.encode(&source).unwrap();
+    assert!(
+        smaller.len() < payload.len(),
+        "line ends {} B vs every position {} B",
+        smaller.len(),
+        payload.len()
+    );
+    let back = now.decode(&smaller, &Layout::of(&source)).unwrap();
+    let first = header.codec.decode(&payload, &Layout::of(&source)).unwrap();
+    // Same coefficients (same quantizer), other stream: the same decoded table.
+    assert!(
+        back.iter()
+            .zip(&first)
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
 }

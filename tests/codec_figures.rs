@@ -468,19 +468,18 @@ fn figures_residual() {
 /// What the codes of a decode-heavy table say about two decoder plans of docs/benchmarks.md
 /// ("Codec decode", what limits gold production), for the gold-metallic-paint production spec:
 /// per component the nonzero codes, the lines along the last axis that hold one, the positions
-/// a context decoder would visit if each line's last nonzero were coded; the multiply-adds
+/// the context decoder visits (up to each line's coded end); the multiply-adds
 /// per output cell of an ideal sparse separable expansion (best axis order), of the same split
 /// by frequency (each code to the part whose last axis is its lowest relative frequency), and
 /// of the row-skipping decoder's model (best order ending in axis 0, as the fused pass chooses
-/// here); and the cost of the zero flags under the context model against the cost of the flags
-/// left plus the line lengths (an adaptive exp-Golomb code, predicted from the neighbouring
-/// lines), by summing −log2 of each decision's probability.
+/// here); and the payload with line ends (what the context coder writes) against the first
+/// model's, every position coded.
 /// `BRDFPACK_SHARED=/work/shared cargo test --release --test codec_figures figures_gold_codes -- --ignored --nocapture`
 #[test]
 #[ignore]
 fn figures_gold_codes() {
     use brdfpack::codec::coefcode;
-    use std::collections::{BTreeSet, HashMap};
+    use std::collections::BTreeSet;
     let Some(t) = testdata::shared_merl("gold-metallic-paint") else {
         return;
     };
@@ -513,33 +512,6 @@ fn figures_gold_codes() {
             + lasts.len() as f64 * a * b * c / 2.0)
             / cells
     };
-    // Ctx of the context coder: P(0) from a fast and a slow estimate (src/codec/coefcode.rs).
-    #[derive(Clone, Copy)]
-    struct Ctx(u32, u32);
-    impl Ctx {
-        fn code(&mut self, bit: bool) -> f64 {
-            let p0 = ((self.0 + self.1) >> 1) as f64 / 65536.0;
-            let bits = -(if bit { 1.0 - p0 } else { p0 }).log2();
-            if bit {
-                self.0 -= self.0 >> 4;
-                self.1 -= self.1 >> 7;
-            } else {
-                self.0 += (65536 - self.0) >> 4;
-                self.1 += (65536 - self.1) >> 7;
-            }
-            bits
-        }
-    }
-    let bucket = |m: u64| -> usize {
-        [0u64, 1, 2, 4, 8, 16, 48, 256]
-            .iter()
-            .position(|&lim| m <= lim)
-            .unwrap_or(8)
-    };
-    let (mut flags_old, mut flags_new, mut lengths) = (0.0, 0.0, 0.0);
-    let mut zero_old: HashMap<(usize, usize, usize), Ctx> = HashMap::new();
-    let mut zero_new = zero_old.clone();
-    let mut len_ctx: HashMap<(u8, usize, usize), Ctx> = HashMap::new();
     for (ci, q) in comps.iter().enumerate() {
         let [e0, e1, e2] = [q.extent[0], q.extent[1], q.extent[2]];
         let at = |i0: usize, i1: usize, i2: usize| q.codes[(i0 * e1 + i1) * e2 + i2];
@@ -632,76 +604,21 @@ fn figures_gold_codes() {
             ks.len(),
             e0 * e1
         );
-        // Coder cost of the zero flags, both ways (contexts as in coefcode.rs).
-        let cc = ci.min(2);
-        for i0 in 0..e0 {
-            for i1 in 0..e1 {
-                let l = len[i0 * e1 + i1];
-                let pred = l_neighbour(&len, e1, i0, i1);
-                let b = if pred == 0 {
-                    0
-                } else {
-                    (1 + pred.ilog2() as usize).min(8)
-                };
-                let mut c = *len_ctx.entry((0, cc, b)).or_insert(Ctx(32768, 32768));
-                lengths += c.code(l > 0);
-                len_ctx.insert((0, cc, b), c);
-                if l > 0 {
-                    let ex = l.ilog2() as usize;
-                    for i in 0..=ex {
-                        let key = (1, cc, b * 16 + i);
-                        let mut c = *len_ctx.entry(key).or_insert(Ctx(32768, 32768));
-                        lengths += c.code(i < ex);
-                        len_ctx.insert(key, c);
-                    }
-                    if ex > 0 {
-                        let key = (2, cc, ex);
-                        let mut c = *len_ctx.entry(key).or_insert(Ctx(32768, 32768));
-                        lengths += c.code((l >> (ex - 1)) & 1 == 1);
-                        len_ctx.insert(key, c);
-                        lengths += (ex - 1) as f64;
-                    }
-                }
-                for i2 in 0..e2 {
-                    let m = |a: i32| a.unsigned_abs() as u64;
-                    let nb = bucket(
-                        if i2 > 0 { m(at(i0, i1, i2 - 1)) } else { 0 }
-                            + if i1 > 0 { m(at(i0, i1 - 1, i2)) } else { 0 }
-                            + if i0 > 0 { m(at(i0 - 1, i1, i2)) } else { 0 },
-                    );
-                    let band = ((i0 + i1 + i2 + 1).ilog2() as usize).min(11);
-                    let bit = at(i0, i1, i2) != 0;
-                    let key = (cc, band, nb);
-                    flags_old += zero_old.entry(key).or_insert(Ctx(32768, 32768)).code(bit);
-                    if i2 + 1 < l {
-                        flags_new += zero_new.entry(key).or_insert(Ctx(32768, 32768)).code(bit);
-                    }
-                }
-            }
-        }
     }
+    let old = coefcode::encode_model(&comps, coefcode::ContextModel::EveryPosition).len();
     println!(
-        "CODES gold production payload {} B: zero flags {:.0} B now; with line ends {:.0} B of \
-         flags + {:.0} B of lengths = {:+.0} B",
-        payload.len(),
-        flags_old / 8.0,
-        flags_new / 8.0,
-        lengths / 8.0,
-        (flags_new + lengths - flags_old) / 8.0
+        "CODES gold production payload {} B with line ends; {old} B with every position coded",
+        payload.len()
     );
 }
 
-/// The larger line length of the neighbouring lines one step back along axes 1 and 0.
-fn l_neighbour(len: &[usize], e1: usize, i0: usize, i1: usize) -> usize {
-    let up = if i1 > 0 { len[i0 * e1 + i1 - 1] } else { 0 };
-    let back = if i0 > 0 { len[(i0 - 1) * e1 + i1] } else { 0 };
-    up.max(back)
-}
-
-/// EXPERIMENT: stream sizes of the budget rows' coefficients under each line scheme.
+/// The context coder's two models on the coefficients of the budget rows (docs/benchmarks.md
+/// "Compression budgets", their specs from docs/compression.md): payload bytes of every
+/// position coded (the first model) against line ends (the current one).
+/// `BRDFPACK_SHARED=/work/shared cargo test --release --test codec_figures figures_line_ends -- --ignored --nocapture`
 #[test]
 #[ignore]
-fn figures_line_schemes() {
+fn figures_line_ends() {
     use brdfpack::codec::coefcode::{self, ContextModel};
     let mut cases: Vec<(String, Table, &str)> = vec![
         ("ggx preview".into(), testdata::ggx_merl(0.2), "dct:eps=0.001,step=24.2,refine=4"),
@@ -719,7 +636,7 @@ fn figures_line_schemes() {
     let src = testdata::WardAniso::new(0.05, 0.1, 0.1, 0.3);
     let w = tabulate(&src, &g, &Default::default()).unwrap();
     cases.push(("ward production".into(), w, "dct:eps=0.01,step=3.86,refine=4"));
-    let mut tot = [0usize; 3];
+    let mut tot = [0usize; 2];
     for (name, t, s) in &cases {
         let spec = CodecRequest::parse(s).unwrap().resolve(t).unwrap();
         let payload = spec.encode(t).unwrap();
@@ -729,11 +646,18 @@ fn figures_line_schemes() {
         let comps = coefcode::decode(&payload, &dims, c, ContextModel::LineEnds).unwrap();
         let old = coefcode::encode_model(&comps, ContextModel::EveryPosition).len();
         let a = coefcode::encode_model(&comps, ContextModel::LineEnds).len();
-        let b = coefcode::encode_last_flags(&comps).len() + comps.len() * dims.len();
+        assert_eq!(a, payload.len(), "{name}");
         tot[0] += old;
         tot[1] += a;
-        tot[2] += b;
-        println!("SCHEMES {name}: old {old} B, (a) line ends {a} B, (b) last flags ~{b} B");
+        println!(
+            "LINE ENDS {name}: every position {old} B, line ends {a} B ({:+.1}%)",
+            100.0 * (a as f64 / old as f64 - 1.0)
+        );
     }
-    println!("SCHEMES total: old {} B, (a) {} B, (b) {} B", tot[0], tot[1], tot[2]);
+    println!(
+        "LINE ENDS total: every position {} B, line ends {} B ({:+.1}%)",
+        tot[0],
+        tot[1],
+        100.0 * (tot[1] as f64 / tot[0] as f64 - 1.0)
+    );
 }

@@ -26,7 +26,7 @@ pub struct ContextCoding {
     pub deadzone: f64,
     /// How the stream is laid out. Headers written before the field existed lack it and are
     /// the first model ([`ContextModel::EveryPosition`]).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "ContextModel::is_every_position")]
     pub model: ContextModel,
 }
 
@@ -44,6 +44,12 @@ pub enum ContextModel {
 }
 
 impl ContextModel {
+    /// The old model is not written: a spec in it serializes to the very header the old
+    /// binary wrote.
+    fn is_every_position(&self) -> bool {
+        *self == ContextModel::EveryPosition
+    }
+
     /// The first byte of the range-coded stream. The range encoder always writes 0 there, so
     /// the byte is free to name the model: a reader that predates line ends refuses the
     /// stream ("bad range coder preamble") instead of decoding it with the wrong model.
@@ -1010,62 +1016,6 @@ pub(crate) fn decode_with(
     Ok(out)
 }
 
-/// EXPERIMENT (scheme b): a "last in line" flag after each nonzero instead of coded ends.
-#[doc(hidden)]
-pub fn encode_last_flags(comps: &[Coefficients]) -> Vec<u8> {
-    let mut rc = RangeEncoder::new();
-    let mut model = Model::new();
-    let mut last = vec![Ctx::default(); COMP_CLASSES * 8 * 3];
-    for (comp, c) in comps.iter().enumerate() {
-        let cc = comp.min(COMP_CLASSES - 1);
-        let grid = LineGrid::new(&c.extent, c.codes.len());
-        let n = grid.n;
-        let d = c.extent.len();
-        let mut outer = vec![0usize; grid.outer_extent.len()];
-        let mut ends = vec![0u32; grid.count];
-        let mut walk = BoxWalk::new(&c.extent);
-        for r in 0..grid.count {
-            let end = c.codes[r * n..(r + 1) * n]
-                .iter()
-                .rposition(|&q| q != 0)
-                .map_or(0, |i| i + 1);
-            let nbrs = LineNbrs::generic(&outer, &grid.strides, r, &ends);
-            rc.encode(&mut model.line.empty[cc * LINE_STATES + nbrs.state], end == 0);
-            // Neighbour ends for the "extends past p" context.
-            let k = outer.len();
-            let mut nb_ends = Vec::new();
-            for a in 0..k {
-                if outer[a] > 0 {
-                    nb_ends.push(ends[r - grid.strides[a]] as usize);
-                }
-            }
-            ends[r] = end as u32;
-            walk.idx[..outer.len()].copy_from_slice(&outer);
-            for i in 0..end {
-                if d > 0 {
-                    walk.idx[d - 1] = i;
-                }
-                let b = r * n + i;
-                let q = c.codes[b];
-                let (band, nb, signs) = walk.context(&c.codes, b);
-                if i + 1 < n {
-                    rc.encode(&mut model.zero[zero_index(cc, band, nb)], q != 0);
-                }
-                if q != 0 {
-                    encode_nonzero(&mut rc, &mut model, cc, nb, signs, q);
-                    if i + 1 < n {
-                        let ext = nb_ends.iter().filter(|&&e| e > i + 1).count().min(2);
-                        let pb = ((i + 1).ilog2() as usize).min(7);
-                        rc.encode(&mut last[(cc * 8 + pb) * 3 + ext], i + 1 == end);
-                    }
-                }
-            }
-            dct::advance(&mut outer, &grid.outer_extent);
-        }
-    }
-    rc.finish()
-}
-
 /// Dead-zone quantization: coefficients with |c| < `deadzone` × step become 0, the others are
 /// rounded as [`dct::quantize`] does (the decoder's reconstruction q × step is unchanged).
 /// Zeroing the many small coefficients costs a little error and saves their bits.
@@ -1151,10 +1101,112 @@ mod tests {
             extent: vec![40, 40, 40],
             codes: vec![0; 64_000],
         };
-        let bytes = encode(std::slice::from_ref(&c));
+        let old = encode_model(std::slice::from_ref(&c), ContextModel::EveryPosition);
         // 64,000 zero flags in a few contexts: the probability saturates near 2^-11.
-        assert!(bytes.len() < 120, "{} bytes", bytes.len());
-        assert_eq!(decode(&bytes, &[40, 40, 40], 1).unwrap(), vec![c]);
+        assert!(old.len() < 120, "{} bytes", old.len());
+        let dims = [40, 40, 40];
+        let back = decode(&old, &dims, 1, ContextModel::EveryPosition).unwrap();
+        assert_eq!(back, vec![c.clone()]);
+        // With line ends: 1,600 empty-line flags (~12 B) after the extents and flush bytes.
+        let bytes = encode(std::slice::from_ref(&c));
+        assert!(bytes.len() <= 20, "{} bytes", bytes.len());
+        assert_eq!(decode(&bytes, &dims, 1, ContextModel::LineEnds).unwrap(), vec![c]);
+    }
+
+    /// Codes with every kind of line: empty, ending at its last position, ending early, one
+    /// nonzero, and magnitudes up to the 2^30 limit.
+    fn varied_lines(extent: &[usize], seed: u64) -> Coefficients {
+        let mut rng = crate::math::SplitMix64::new(seed);
+        let n: usize = extent.iter().product();
+        let len = extent.last().copied().unwrap_or(1);
+        let mut codes = vec![0i32; n];
+        for (r, line) in codes.chunks_mut(len).enumerate() {
+            let end = match r % 5 {
+                0 => 0,
+                1 => len,
+                2 => 1,
+                _ => 1 + (rng.next_f64() * len as f64) as usize % len,
+            };
+            for (i, q) in line[..end].iter_mut().enumerate() {
+                if i + 1 == end || rng.next_f64() < 0.3 {
+                    let m = (rng.next_f64() * 31.0).exp2().min((1u64 << 30) as f64) as i32;
+                    *q = if rng.next_f64() < 0.5 { -m.max(1) } else { m.max(1) };
+                }
+            }
+        }
+        Coefficients {
+            extent: extent.to_vec(),
+            codes,
+        }
+    }
+
+    /// Files written before line ends (no `model` in the header) hold streams in the first
+    /// model: they still decode, and such a header still reads and writes without the field
+    /// (tests/codec_compat.rs decodes a file the old binary wrote).
+    #[test]
+    fn the_first_model_still_decodes() {
+        let c = Coefficients {
+            extent: vec![3, 4],
+            codes: vec![5, -3, 0, 1, 0, 0, 2, 0, -1, 0, 0, 7],
+        };
+        let old = encode_model(std::slice::from_ref(&c), ContextModel::EveryPosition);
+        assert_eq!(
+            decode(&old, &[4, 4], 1, ContextModel::EveryPosition).unwrap(),
+            vec![c.clone()]
+        );
+        // Each model refuses the other's stream by its first byte.
+        assert!(decode(&old, &[4, 4], 1, ContextModel::LineEnds).is_err());
+        let new = encode(std::slice::from_ref(&c));
+        assert!(decode(&new, &[4, 4], 1, ContextModel::EveryPosition).is_err());
+        let json = r#"{"deadzone":0.75}"#;
+        let coding: ContextCoding = serde_json::from_str(json).unwrap();
+        assert_eq!(coding.model, ContextModel::EveryPosition);
+        assert_eq!(serde_json::to_string(&coding).unwrap(), json);
+        let coding = ContextCoding::new(0.75);
+        assert_eq!(
+            serde_json::to_string(&coding).unwrap(),
+            r#"{"deadzone":0.75,"model":"line_ends"}"#
+        );
+    }
+
+    #[test]
+    fn line_ends_round_trip_every_kind_of_line() {
+        for extent in [vec![7], vec![5, 9], vec![4, 6, 11], vec![3, 4, 2, 5], vec![2, 3, 1]] {
+            for seed in 0..8 {
+                let cs = vec![
+                    varied_lines(&extent, seed),
+                    varied_lines(&extent, seed + 100),
+                    varied_lines(&extent, seed + 200),
+                ];
+                for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+                    let bytes = encode_model(&cs, model);
+                    let back = decode(&bytes, &extent, 3, model).unwrap();
+                    assert_eq!(back, cs, "{extent:?} seed {seed} {model:?}");
+                }
+            }
+        }
+    }
+
+    /// A stream whose first line claims to end past the box: an error naming the end, on the
+    /// 3-D and on the generic path.
+    #[test]
+    fn a_line_end_beyond_the_extent_is_an_error() {
+        for extent in [vec![3usize], vec![1, 1, 3], vec![1, 3]] {
+            let mut out = Vec::new();
+            for &e in &extent {
+                put_varint(&mut out, e as u64);
+            }
+            let mut rc = RangeEncoder::new();
+            let mut m = Model::new();
+            // Not empty, no neighbour: end − 1 = 5, end 6 in a line of 3.
+            rc.encode(&mut m.line.empty[0], false);
+            m.line.encode_eg(&mut rc, 0, FRESH, 5);
+            let mut stream = rc.finish();
+            stream[0] = ContextModel::LineEnds.preamble();
+            out.extend(stream);
+            let err = decode(&out, &extent, 1, ContextModel::LineEnds).unwrap_err();
+            assert!(err.to_string().contains("line end 6 outside 1..=3"), "{err}");
+        }
     }
 
     #[test]
@@ -1168,27 +1220,34 @@ mod tests {
 
     #[test]
     fn hostile_streams_are_errors() {
-        let dims = [4usize, 4];
-        assert!(decode(&[], &dims, 1).is_err());
-        assert!(decode(&[9, 1, 0, 0, 0, 0, 0], &dims, 1).is_err());
-        // A preamble byte that the encoder never writes.
-        assert!(decode(&[2, 2, 1, 0, 0, 0, 0], &dims, 1).is_err());
-        // Garbage after valid extents: decodes to something or errors, never panics.
-        for seed in 0..200u64 {
-            let mut rng = crate::math::SplitMix64::new(seed);
-            let mut b = vec![4u8, 4, 0];
-            b.extend((0..12).map(|_| (rng.next_f64() * 256.0) as u8));
-            let _ = decode(&b, &dims, 1);
-        }
-        let c = Coefficients {
-            extent: vec![3, 4],
-            codes: vec![5, -3, 0, 1, 0, 0, 2, 0, -1, 0, 0, 7],
-        };
-        let bytes = encode(std::slice::from_ref(&c));
-        for cut in 0..bytes.len() - 1 {
-            if let Ok(v) = decode(&bytes[..cut], &dims, 1) {
-                // A cut inside the flush bytes may still decode, but only to the same codes.
-                assert_eq!(v, vec![c.clone()], "cut {cut}");
+        for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+            let pre = model.preamble();
+            for dims in [vec![4usize, 4], vec![4, 4, 4]] {
+                let d = dims.len();
+                assert!(decode(&[], &dims, 1, model).is_err());
+                assert!(decode(&[9, 1, 0, 0, 0, 0, 0, 0], &dims, 1, model).is_err());
+                // A preamble byte that the encoder never writes.
+                let mut b = vec![2u8; d];
+                b.extend([7, 0, 0, 0, 0]);
+                assert!(decode(&b, &dims, 1, model).is_err());
+                // Garbage after valid extents: decodes to something or errors, never panics.
+                for seed in 0..200u64 {
+                    let mut rng = crate::math::SplitMix64::new(seed);
+                    let mut b = vec![4u8; d];
+                    b.push(pre);
+                    b.extend((0..12).map(|_| (rng.next_f64() * 256.0) as u8));
+                    let _ = decode(&b, &dims, 1, model);
+                }
+                let extent: Vec<usize> = (0..d).map(|a| 3 + (a + 1) % 2).collect();
+                let c = varied_lines(&extent, 3);
+                let bytes = encode_model(std::slice::from_ref(&c), model);
+                for cut in 0..bytes.len() - 1 {
+                    if let Ok(v) = decode(&bytes[..cut], &dims, 1, model) {
+                        // A cut inside the flush bytes may still decode, but only to the same
+                        // codes.
+                        assert_eq!(v, vec![c.clone()], "cut {cut}");
+                    }
+                }
             }
         }
     }
@@ -1208,7 +1267,43 @@ mod tests {
                 if rng.next_f64() < sparsity { 0 } else { (rng.next_f64() * 200.0 - 100.0) as i32 }
             }).collect();
             let cs = vec![Coefficients { extent: shape.clone(), codes }];
-            let back = decode(&encode(&cs), &shape, 1).unwrap();
+            for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+                let back = decode(&encode_model(&cs, model), &shape, 1, model).unwrap();
+                prop_assert_eq!(&back, &cs);
+            }
+        }
+
+        /// Line ends on boxes of 1–4 axes (the 3-axis ones through the fast path), some
+        /// empty, with all-zero lines, lines ending at their last position and magnitudes up
+        /// to 2^30.
+        #[test]
+        fn line_ends_round_trip(
+            shape in proptest::collection::vec(0usize..7, 1..5), comps in 1usize..4,
+            seed in any::<u64>(), spread in 0.0f64..31.0, sparsity in 0.0f64..1.0,
+            zero_lines in 0.0f64..1.0,
+        ) {
+            let mut rng = crate::math::SplitMix64::new(seed);
+            let dims: Vec<usize> = shape.iter().map(|&e| e.max(1)).collect();
+            let cs: Vec<Coefficients> = (0..comps).map(|k| {
+                let extent = if k == 1 && seed % 3 == 0 { vec![0; shape.len()] } else { shape.clone() };
+                let n: usize = if extent.contains(&0) { 0 } else { extent.iter().product() };
+                let len = extent.last().copied().unwrap_or(1).max(1);
+                let mut codes = vec![0i32; n];
+                for line in codes.chunks_mut(len) {
+                    if rng.next_f64() < zero_lines {
+                        continue;
+                    }
+                    for q in line.iter_mut() {
+                        if rng.next_f64() >= sparsity {
+                            let m = (rng.next_f64() * spread).exp2().min((1u64 << 30) as f64) as i32;
+                            *q = if rng.next_f64() < 0.5 { -m } else { m };
+                        }
+                    }
+                }
+                Coefficients { extent, codes }
+            }).collect();
+            let bytes = encode(&cs);
+            let back = decode(&bytes, &dims, comps, ContextModel::LineEnds).unwrap();
             prop_assert_eq!(back, cs);
         }
 
@@ -1230,9 +1325,11 @@ mod tests {
                 }).collect();
                 Coefficients { extent, codes }
             }).collect();
-            let bytes = encode(&cs);
-            let back = decode(&bytes, &dims, comps).unwrap();
-            prop_assert_eq!(back, cs);
+            for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+                let bytes = encode_model(&cs, model);
+                let back = decode(&bytes, &dims, comps, model).unwrap();
+                prop_assert_eq!(&back, &cs);
+            }
         }
     }
 }
