@@ -2,8 +2,8 @@
 //! path still writes them; files written in the context coder's first model (before line
 //! ends) still decode (fixtures/codec/README.md says how the fixtures were made).
 
-use brdfpack::codec::transform::Curve;
 use brdfpack::codec::coefcode::ContextModel;
+use brdfpack::codec::transform::Curve;
 use brdfpack::codec::{CodecRequest, CodecSpec, Layout, reference};
 use brdfpack::io::native;
 use std::path::{Path, PathBuf};
@@ -135,7 +135,7 @@ fn old_headers_parse_unweighted_and_serialize_byte_for_byte() {
 /// A `dct` file of the context coder's first model (every position coded, written by the main
 /// binary at efcdcd2, before line ends): its header has no `model` and reads as that model, it
 /// decodes to what the old binary decoded, the old model's encoder still writes its very
-/// payload, and today's `dct:step=0.01` (line ends) is smaller.
+/// payload, and today's `dct:step=0.01` (line ends) decodes to the same table.
 #[test]
 fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
     let (p, old) = fixture("ggx-dct-context-v1.bpk");
@@ -180,14 +180,18 @@ fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
         panic!("{now:?}")
     };
     assert_eq!(coding.model, ContextModel::LineEnds);
-    let smaller = now.encode(&source).unwrap();
+    let ends = now.encode(&source).unwrap();
+    // This box is dense (step 0.01 on 8 × 8 × 16: most lines run to their last position or
+    // near it), so the ends save few zero flags and cost about as much as they save: 964 B
+    // against 952 B when this was written. The sparse boxes of real budgets gain 2–17%
+    // (docs/compression.md "Line ends").
     assert!(
-        smaller.len() < payload.len(),
+        ends.len() * 100 <= payload.len() * 102,
         "line ends {} B vs every position {} B",
-        smaller.len(),
+        ends.len(),
         payload.len()
     );
-    let back = now.decode(&smaller, &Layout::of(&source)).unwrap();
+    let back = now.decode(&ends, &Layout::of(&source)).unwrap();
     let first = header.codec.decode(&payload, &Layout::of(&source)).unwrap();
     // Same coefficients (same quantizer), other stream: the same decoded table.
     assert!(

@@ -621,21 +621,49 @@ fn figures_gold_codes() {
 fn figures_line_ends() {
     use brdfpack::codec::coefcode::{self, ContextModel};
     let mut cases: Vec<(String, Table, &str)> = vec![
-        ("ggx preview".into(), testdata::ggx_merl(0.2), "dct:eps=0.001,step=24.2,refine=4"),
-        ("ggx production".into(), testdata::ggx_merl(0.2), "dct:eps=0.001,step=1.31,refine=4"),
+        (
+            "ggx preview".into(),
+            testdata::ggx_merl(0.2),
+            "dct:eps=0.001,step=24.2,refine=4",
+        ),
+        (
+            "ggx production".into(),
+            testdata::ggx_merl(0.2),
+            "dct:eps=0.001,step=1.31,refine=4",
+        ),
     ];
     if let Some(t) = testdata::shared_merl("gold-metallic-paint") {
-        cases.push(("gold preview".into(), t.clone(), "dct:eps=0.001,step=5.35,deadzone=0.6"));
-        cases.push(("gold production".into(), t, "dct:eps=0.001,step=0.316,refine=4"));
+        cases.push((
+            "gold preview".into(),
+            t.clone(),
+            "dct:eps=0.001,step=5.35,deadzone=0.6",
+        ));
+        cases.push((
+            "gold production".into(),
+            t,
+            "dct:eps=0.001,step=0.316,refine=4",
+        ));
     }
     if let Some(t) = testdata::shared_merl("white-diffuse-bball") {
-        cases.push(("white preview".into(), t.clone(), "dct:eps=0.001,step=37.8,deadzone=0.6"));
-        cases.push(("white production".into(), t, "dct:eps=0.001,step=1.26,refine=4"));
+        cases.push((
+            "white preview".into(),
+            t.clone(),
+            "dct:eps=0.001,step=37.8,deadzone=0.6",
+        ));
+        cases.push((
+            "white production".into(),
+            t,
+            "dct:eps=0.001,step=1.26,refine=4",
+        ));
     }
     let g = parse_grid_spec("halfdiff4:64").unwrap();
     let src = testdata::WardAniso::new(0.05, 0.1, 0.1, 0.3);
     let w = tabulate(&src, &g, &Default::default()).unwrap();
-    cases.push(("ward production".into(), w, "dct:eps=0.01,step=3.86,refine=4"));
+    cases.push((
+        "ward production".into(),
+        w,
+        "dct:eps=0.01,step=3.86,refine=4",
+    ));
     let mut tot = [0usize; 2];
     for (name, t, s) in &cases {
         let spec = CodecRequest::parse(s).unwrap().resolve(t).unwrap();

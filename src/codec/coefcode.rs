@@ -440,8 +440,7 @@ impl LineModel {
         }
         let mut v: u64 = 1;
         if e > 0 {
-            let top =
-                rc.decode(&mut self.mantissa[base * (MAX_END_EXP as usize + 1) + e as usize]);
+            let top = rc.decode(&mut self.mantissa[base * (MAX_END_EXP as usize + 1) + e as usize]);
             v = (v << 1) | top as u64;
             for _ in 0..e - 1 {
                 v = (v << 1) | rc.decode_direct() as u64;
@@ -654,12 +653,7 @@ impl LineGrid {
 }
 
 /// The line-end model: per line (C order) its end, then the positions up to it.
-fn encode_component_lines(
-    rc: &mut RangeEncoder,
-    model: &mut Model,
-    comp: usize,
-    c: &Coefficients,
-) {
+fn encode_component_lines(rc: &mut RangeEncoder, model: &mut Model, comp: usize, c: &Coefficients) {
     let cc = comp.min(COMP_CLASSES - 1);
     let grid = LineGrid::new(&c.extent, c.codes.len());
     let n = grid.n;
@@ -982,7 +976,13 @@ pub fn decode(
     components: usize,
     model: ContextModel,
 ) -> Result<Vec<Coefficients>> {
-    decode_with(payload, dims, components, model, &mut DecodeScratch::default())
+    decode_with(
+        payload,
+        dims,
+        components,
+        model,
+        &mut DecodeScratch::default(),
+    )
 }
 
 /// [`decode`] with the code arrays taken from `scratch`.
@@ -1006,7 +1006,9 @@ pub(crate) fn decode_with(
     let lines = model == ContextModel::LineEnds;
     let mut out = Vec::with_capacity(components);
     for (k, extent) in extents.into_iter().enumerate() {
-        out.push(decode_component(&mut rc, &mut m, k, extent, lines, scratch)?);
+        out.push(decode_component(
+            &mut rc, &mut m, k, extent, lines, scratch,
+        )?);
     }
     if !rc.within_input() {
         return Err(Error::input(
@@ -1110,7 +1112,10 @@ mod tests {
         // With line ends: 1,600 empty-line flags (~12 B) after the extents and flush bytes.
         let bytes = encode(std::slice::from_ref(&c));
         assert!(bytes.len() <= 20, "{} bytes", bytes.len());
-        assert_eq!(decode(&bytes, &dims, 1, ContextModel::LineEnds).unwrap(), vec![c]);
+        assert_eq!(
+            decode(&bytes, &dims, 1, ContextModel::LineEnds).unwrap(),
+            vec![c]
+        );
     }
 
     /// Codes with every kind of line: empty, ending at its last position, ending early, one
@@ -1130,7 +1135,11 @@ mod tests {
             for (i, q) in line[..end].iter_mut().enumerate() {
                 if i + 1 == end || rng.next_f64() < 0.3 {
                     let m = (rng.next_f64() * 31.0).exp2().min((1u64 << 30) as f64) as i32;
-                    *q = if rng.next_f64() < 0.5 { -m.max(1) } else { m.max(1) };
+                    *q = if rng.next_f64() < 0.5 {
+                        -m.max(1)
+                    } else {
+                        m.max(1)
+                    };
                 }
             }
         }
@@ -1171,7 +1180,13 @@ mod tests {
 
     #[test]
     fn line_ends_round_trip_every_kind_of_line() {
-        for extent in [vec![7], vec![5, 9], vec![4, 6, 11], vec![3, 4, 2, 5], vec![2, 3, 1]] {
+        for extent in [
+            vec![7],
+            vec![5, 9],
+            vec![4, 6, 11],
+            vec![3, 4, 2, 5],
+            vec![2, 3, 1],
+        ] {
             for seed in 0..8 {
                 let cs = vec![
                     varied_lines(&extent, seed),
@@ -1205,7 +1220,10 @@ mod tests {
             stream[0] = ContextModel::LineEnds.preamble();
             out.extend(stream);
             let err = decode(&out, &extent, 1, ContextModel::LineEnds).unwrap_err();
-            assert!(err.to_string().contains("line end 6 outside 1..=3"), "{err}");
+            assert!(
+                err.to_string().contains("line end 6 outside 1..=3"),
+                "{err}"
+            );
         }
     }
 
