@@ -2,16 +2,28 @@
 //! `coding=context`): an adaptive binary range coder with contexts on the coefficient's
 //! frequency band and its already-coded neighbours.
 //!
-//! Every coefficient of a component's box (C order, as [`dct::quantize`] stores it) is coded
-//! as: a zero flag; for a nonzero, its sign and |q| in an exp-Golomb-like binarization
-//! (unary exponent with contexts, the leading mantissa bit with a context, the rest at ½).
-//! Contexts: component (first, second, rest), band = ⌊log2(1 + Σ frequency indices)⌋, and the
-//! magnitudes of the neighbours one step back along every axis (coded before it in C order).
+//! The box of a component (C order, as [`dct::quantize`] stores it) is a set of lines along its
+//! last axis. In the current model ([`ContextModel::LineEnds`]) each line, in C order, first
+//! codes its end (1 + the position of its last nonzero, 0 when empty): an empty flag (context:
+//! whether the lines one step back along the last-but-one axis and along the others are missing,
+//! empty or not), then the end relative to the prediction p = the largest end of those lines
+//! (p = 0: end − 1 in exp-Golomb; else a flag "end = p", a direction flag where both are
+//! possible, |end − p| − 1 in exp-Golomb; contexts on ⌊log2 p⌋). Only the positions before
+//! the end are coded, each as: a zero flag (implied nonzero at the last one); for a nonzero,
+//! its sign and |q| in an exp-Golomb-like binarization (unary exponent with contexts, the
+//! leading mantissa bit with a context, the rest at ½). Contexts: component (first, second,
+//! rest), band = ⌊log2(1 + Σ frequency indices)⌋, and the magnitudes of the neighbours one step
+//! back along every axis (coded before it in C order; those past their line's end are 0). The
+//! first model ([`ContextModel::EveryPosition`], files written before line ends) codes every
+//! position of the box this way, without ends; its stream starts with byte 0, the current
+//! one's with 1.
 //!
 //! The coder is the LZMA range coder (Pavlov, 7-Zip `LzmaEnc.c`) with 16-bit probabilities,
 //! each context the average of a fast and a slow estimator: integer arithmetic only, so the
 //! bytes are the same on every machine. Typical gain over varints + zstd on smooth BRDF tables:
-//! 1.4–2× at the same coefficients (docs/compression.md).
+//! 1.4–2× at the same coefficients (docs/compression.md); line ends save 0–17% more on the
+//! budget tables (3.1% in all) and let the decoder skip the positions after them (it visits
+//! 70,019 of gold-metallic-paint production's 1,586,962).
 
 use super::DecodeScratch;
 use super::dct::{self, Coefficients};
