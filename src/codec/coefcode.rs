@@ -420,44 +420,26 @@ impl LineModel {
     /// `v` ≥ 0 as exp-Golomb (v + 1: unary exponent with contexts, the leading mantissa bit
     /// with a context, the rest at ½) in the code `kind` of component class `cc`.
     fn encode_eg(&mut self, rc: &mut RangeEncoder, cc: usize, kind: usize, v: u64) {
-        let v = v + 1;
-        let e = v.ilog2();
         let base = cc * 3 + kind;
-        for i in 0..=e {
-            let ctx = &mut self.unary[base * END_UNARY + (i as usize).min(END_UNARY - 1)];
-            rc.encode(ctx, i < e);
-        }
-        if e > 0 {
-            let top = (v >> (e - 1)) & 1 == 1;
-            rc.encode(
-                &mut self.mantissa[base * (MAX_END_EXP as usize + 1) + e as usize],
-                top,
-            );
-            for k in (0..e - 1).rev() {
-                rc.encode_direct((v >> k) & 1 == 1);
-            }
-        }
+        encode_golomb(
+            rc,
+            &mut self.unary[base * END_UNARY..(base + 1) * END_UNARY],
+            &mut self.mantissa
+                [base * (MAX_END_EXP as usize + 1)..(base + 1) * (MAX_END_EXP as usize + 1)],
+            v + 1,
+        );
     }
 
     fn decode_eg(&mut self, rc: &mut RangeDecoder, cc: usize, kind: usize) -> Result<u64> {
         let base = cc * 3 + kind;
-        let mut e = 0u32;
-        while rc.decode(&mut self.unary[base * END_UNARY + (e as usize).min(END_UNARY - 1)]) {
-            e += 1;
-            if e > MAX_END_EXP {
-                return Err(Error::input(
-                    "context-coded DCT stream: line end beyond 2^40",
-                ));
-            }
-        }
-        let mut v: u64 = 1;
-        if e > 0 {
-            let top = rc.decode(&mut self.mantissa[base * (MAX_END_EXP as usize + 1) + e as usize]);
-            v = (v << 1) | top as u64;
-            for _ in 0..e - 1 {
-                v = (v << 1) | rc.decode_direct() as u64;
-            }
-        }
+        let v = decode_golomb(
+            rc,
+            &mut self.unary[base * END_UNARY..(base + 1) * END_UNARY],
+            &mut self.mantissa
+                [base * (MAX_END_EXP as usize + 1)..(base + 1) * (MAX_END_EXP as usize + 1)],
+            MAX_END_EXP,
+        )
+        .ok_or_else(|| Error::input("context-coded DCT stream: line end beyond 2^40"))?;
         Ok(v - 1)
     }
 
@@ -601,25 +583,63 @@ fn encode_nonzero(
     q: i32,
 ) {
     rc.encode(&mut model.sign[cc * 9 + signs], q < 0);
-    // |q| ≥ 1 as exp-Golomb: e = ⌊log2 |q|⌋ in unary, then the e bits below the
-    // leading one (the first with a context, the rest at ½).
-    let v = q.unsigned_abs() as u64;
-    let e = 63 - v.leading_zeros();
+    let (unary, mantissa) = magnitude_contexts(model, cc, nb);
+    encode_golomb(rc, unary, mantissa, q.unsigned_abs() as u64);
+}
+
+/// The contexts of |q|'s binarization: its unary exponent's (by component class and
+/// neighbour bucket) and its first mantissa bit's (by component class).
+#[inline]
+fn magnitude_contexts(model: &mut Model, cc: usize, nb: usize) -> (&mut [Ctx], &mut [Ctx]) {
+    let u = (cc * NBR_BUCKETS + nb) * UNARY_POS;
+    let m = cc * (MAX_EXP as usize + 1);
+    (
+        &mut model.unary[u..u + UNARY_POS],
+        &mut model.mantissa[m..m + MAX_EXP as usize + 1],
+    )
+}
+
+/// v ≥ 1 in the exp-Golomb-like binarization of magnitudes and line ends: e = ⌊log2 v⌋ in
+/// unary (bit i with context `unary[min(i, len − 1)]`), then the bit below the leading one
+/// with context `mantissa[e]`, the e − 1 bits below it at ½.
+fn encode_golomb(rc: &mut RangeEncoder, unary: &mut [Ctx], mantissa: &mut [Ctx], v: u64) {
+    let e = v.ilog2();
+    let last = unary.len() - 1;
     for i in 0..=e {
-        let ctx =
-            &mut model.unary[(cc * NBR_BUCKETS + nb) * UNARY_POS + (i as usize).min(UNARY_POS - 1)];
-        rc.encode(ctx, i < e);
+        rc.encode(&mut unary[(i as usize).min(last)], i < e);
     }
     if e > 0 {
-        let top = (v >> (e - 1)) & 1 == 1;
-        rc.encode(
-            &mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize],
-            top,
-        );
+        rc.encode(&mut mantissa[e as usize], (v >> (e - 1)) & 1 == 1);
         for k in (0..e - 1).rev() {
             rc.encode_direct((v >> k) & 1 == 1);
         }
     }
+}
+
+/// Inverse of [`encode_golomb`]; None when the exponent exceeds `max_e`.
+#[inline]
+fn decode_golomb(
+    rc: &mut RangeDecoder,
+    unary: &mut [Ctx],
+    mantissa: &mut [Ctx],
+    max_e: u32,
+) -> Option<u64> {
+    let last = unary.len() - 1;
+    let mut e = 0u32;
+    while rc.decode(&mut unary[(e as usize).min(last)]) {
+        e += 1;
+        if e > max_e {
+            return None;
+        }
+    }
+    let mut v: u64 = 1;
+    if e > 0 {
+        v = (v << 1) | rc.decode(&mut mantissa[e as usize]) as u64;
+        for _ in 0..e - 1 {
+            v = (v << 1) | rc.decode_direct() as u64;
+        }
+    }
+    Some(v)
 }
 
 /// The first model: every position of the box.
@@ -771,28 +791,9 @@ fn decode_nonzero(
     signs: usize,
 ) -> Result<i32> {
     let neg = rc.decode(&mut model.sign[cc * 9 + signs]);
-    let mut e = 0u32;
-    loop {
-        let ctx =
-            &mut model.unary[(cc * NBR_BUCKETS + nb) * UNARY_POS + (e as usize).min(UNARY_POS - 1)];
-        if !rc.decode(ctx) {
-            break;
-        }
-        e += 1;
-        if e > 30 {
-            return Err(Error::input(
-                "context-coded DCT stream: coefficient exceeds 2^30",
-            ));
-        }
-    }
-    let mut v: u64 = 1;
-    if e > 0 {
-        let top = rc.decode(&mut model.mantissa[cc * (MAX_EXP as usize + 1) + e as usize]);
-        v = (v << 1) | top as u64;
-        for _ in 0..e - 1 {
-            v = (v << 1) | rc.decode_direct() as u64;
-        }
-    }
+    let (unary, mantissa) = magnitude_contexts(model, cc, nb);
+    let v = decode_golomb(rc, unary, mantissa, 30)
+        .ok_or_else(|| Error::input("context-coded DCT stream: coefficient exceeds 2^30"))?;
     let mag = v as i32; // v < 2^31 (e ≤ 30)
     Ok(if neg { -mag } else { mag })
 }
