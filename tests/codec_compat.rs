@@ -32,14 +32,20 @@ fn an_old_dct_file_decodes_to_what_the_old_binary_decoded() {
         },
         _ => unreachable!(),
     };
-    let table = native::from_bytes(&old, &p).unwrap();
-    let (q, dec) = fixture("ggx-dct-v1-decoded.bpk");
-    let want = native::from_bytes(&dec, &q).unwrap();
-    assert_eq!(table.data().len(), 8 * 8 * 16 * 3);
     // The fast decoder (src/codec/idct.rs: other summation order, vectorized exp) is not bit
     // for bit the old one; it agrees within 5e-5 of ε + x, the bound src/codec/mod.rs's
     // `assert_matches_reference` states (6× below the finest step's quantization noise). The
     // bit-exact comparison with the old decoder is in the next test, on `codec::reference`.
+    assert_decodes_near(&old, &p, "ggx-dct-v1-decoded.bpk", &eps);
+}
+
+/// The file `bytes` (read from `path`) decodes to the fixture `decoded` within 5e-5 of ε + x
+/// per channel (`eps`).
+fn assert_decodes_near(bytes: &[u8], path: &Path, decoded: &str, eps: &[f64]) {
+    let table = native::from_bytes(bytes, path).unwrap();
+    let (q, dec) = fixture(decoded);
+    let want = native::from_bytes(&dec, &q).unwrap();
+    assert_eq!(table.data().len(), 8 * 8 * 16 * 3);
     for (i, (a, b)) in table.data().iter().zip(want.data()).enumerate() {
         let tol = 5e-5 * (b.abs() as f64 + eps[i % 3]);
         assert!(
@@ -151,20 +157,10 @@ fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
         Curve::Log { eps } => eps.clone(),
         Curve::Linear => vec![0.0; 3],
     };
-    let table = native::from_bytes(&old, &p).unwrap();
-    let (q, dec) = fixture("ggx-dct-context-v1-decoded.bpk");
-    let want = native::from_bytes(&dec, &q).unwrap();
-    assert_eq!(table.data().len(), 8 * 8 * 16 * 3);
     // The same tolerance as the `dct` file above, for the same reason (the fast inverse DCT
     // may change its summation order); the coefficients themselves are the old ones exactly,
     // as the payload check below shows.
-    for (i, (a, b)) in table.data().iter().zip(want.data()).enumerate() {
-        let tol = 5e-5 * (b.abs() as f64 + eps[i % 3]);
-        assert!(
-            ((a - b) as f64).abs() <= tol,
-            "value {i}: {a} vs the old binary's {b}"
-        );
-    }
+    assert_decodes_near(&old, &p, "ggx-dct-context-v1-decoded.bpk", &eps);
     let (s, src) = fixture("ggx-lossless.bpk");
     let source = native::from_bytes(&src, &s).unwrap();
     let payload = header.codec.encode(&source).unwrap();
