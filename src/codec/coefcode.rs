@@ -809,6 +809,15 @@ const NBR_LUT: [u8; 257] = {
     t
 };
 
+/// Offset of the zero-flag contexts of each band (within a component class), by the sum of
+/// the frequency indices, for sums below `n`.
+fn band_offsets(n: usize) -> Vec<usize> {
+    (0..n)
+        .map(|sum| ((usize::BITS - (sum + 1).leading_zeros() - 1) as usize).min(BANDS - 1))
+        .map(|band| band * NBR_BUCKETS)
+        .collect()
+}
+
 /// The 3-D box (every MERL-grid table) with the contexts of [`BoxWalk`] computed
 /// incrementally: the same model inputs in the same order, so the same stream decodes to the
 /// same codes, at a fraction of the generic walk's cost (a DCT box is ~98% zeros, so the
@@ -826,11 +835,7 @@ fn decode_box_3d(
     // can borrow the rest of the model.
     let mut zero_ctx =
         model.zero[cc * BANDS * NBR_BUCKETS..(cc + 1) * BANDS * NBR_BUCKETS].to_vec();
-    // Offset of the zero-flag contexts of each band, by the sum of the frequency indices.
-    let band_offset: Vec<usize> = (0..e0 + e1 + e2)
-        .map(|sum| ((usize::BITS - (sum + 1).leading_zeros() - 1) as usize).min(BANDS - 1))
-        .map(|band| band * NBR_BUCKETS)
-        .collect();
+    let band_offset = band_offsets(e0 + e1 + e2);
     // Missing neighbours (index 0 along an axis) read as 0: the same magnitude sum (nothing
     // added) and sign context (signum 0 ↦ 1, the generic walk's "no neighbour") as `BoxWalk`.
     let zeros = vec![0i32; e2];
@@ -886,10 +891,7 @@ fn decode_lines_3d(
     let s0 = e1 * e2;
     let zero_range = cc * BANDS * NBR_BUCKETS..(cc + 1) * BANDS * NBR_BUCKETS;
     let mut zero_ctx = model.zero[zero_range.clone()].to_vec();
-    let band_offset: Vec<usize> = (0..e0 + e1 + e2)
-        .map(|sum| ((usize::BITS - (sum + 1).leading_zeros() - 1) as usize).min(BANDS - 1))
-        .map(|band| band * NBR_BUCKETS)
-        .collect();
+    let band_offset = band_offsets(e0 + e1 + e2);
     let zeros = vec![0i32; e2];
     let mut ends = vec![0u32; e0 * e1];
     for i0 in 0..e0 {
