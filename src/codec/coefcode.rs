@@ -524,15 +524,10 @@ struct BoxWalk {
 
 impl BoxWalk {
     fn new(extent: &[usize]) -> BoxWalk {
-        let d = extent.len();
-        let mut strides = vec![1usize; d];
-        for a in (0..d.saturating_sub(1)).rev() {
-            strides[a] = strides[a + 1] * extent[a + 1];
-        }
         BoxWalk {
             extent: extent.to_vec(),
-            strides,
-            idx: vec![0; d],
+            strides: dct::c_strides(extent),
+            idx: vec![0; extent.len()],
         }
     }
 
@@ -565,6 +560,11 @@ impl BoxWalk {
     fn advance(&mut self) {
         dct::advance(&mut self.idx, &self.extent);
     }
+}
+
+/// The zero-flag contexts of component class `cc` (every band and neighbour bucket).
+fn zero_class(cc: usize) -> std::ops::Range<usize> {
+    zero_index(cc, 0, 0)..zero_index(cc + 1, 0, 0)
 }
 
 /// The zero-flag context index of component class `cc`, band and neighbour bucket.
@@ -670,14 +670,9 @@ impl LineGrid {
         let d = extent.len();
         let n = extent.last().copied().unwrap_or(1);
         let outer_extent = extent[..d.saturating_sub(1)].to_vec();
-        let k = outer_extent.len();
-        let mut strides = vec![1usize; k];
-        for a in (0..k.saturating_sub(1)).rev() {
-            strides[a] = strides[a + 1] * outer_extent[a + 1];
-        }
         LineGrid {
+            strides: dct::c_strides(&outer_extent),
             outer_extent,
-            strides,
             count: if total == 0 { 0 } else { total / n },
             n,
         }
@@ -726,7 +721,7 @@ fn decode_component(
     model: &mut Model,
     comp: usize,
     extent: Vec<usize>,
-    lines: bool,
+    layout: ContextModel,
     scratch: &mut DecodeScratch,
 ) -> Result<Coefficients> {
     let cc = comp.min(COMP_CLASSES - 1);
@@ -738,15 +733,14 @@ fn decode_component(
     let mut codes = scratch.take_i32_zeroed(total);
     if extent.len() == 3 && total > 0 {
         let e = [extent[0], extent[1], extent[2]];
-        if lines {
-            decode_lines_3d(rc, model, cc, e, &mut codes)?;
-        } else {
-            decode_box_3d(rc, model, cc, e, &mut codes)?;
+        match layout {
+            ContextModel::LineEnds => decode_lines_3d(rc, model, cc, e, &mut codes)?,
+            ContextModel::EveryPosition => decode_box_3d(rc, model, cc, e, &mut codes)?,
         }
         return Ok(Coefficients { extent, codes });
     }
     let mut walk = BoxWalk::new(&extent);
-    if !lines {
+    if layout == ContextModel::EveryPosition {
         for b in 0..total {
             let (band, nb, signs) = walk.context(&codes, b);
             if rc.decode(&mut model.zero[zero_index(cc, band, nb)]) {
@@ -833,8 +827,8 @@ fn decode_box_3d(
     let s0 = e1 * e2;
     // The zero-flag contexts of this component class, held apart so that `decode_nonzero`
     // can borrow the rest of the model.
-    let mut zero_ctx =
-        model.zero[cc * BANDS * NBR_BUCKETS..(cc + 1) * BANDS * NBR_BUCKETS].to_vec();
+    let zero_range = zero_class(cc);
+    let mut zero_ctx = model.zero[zero_range.clone()].to_vec();
     let band_offset = band_offsets(e0 + e1 + e2);
     // Missing neighbours (index 0 along an axis) read as 0: the same magnitude sum (nothing
     // added) and sign context (signum 0 ↦ 1, the generic walk's "no neighbour") as `BoxWalk`.
@@ -875,7 +869,7 @@ fn decode_box_3d(
             }
         }
     }
-    model.zero[cc * BANDS * NBR_BUCKETS..(cc + 1) * BANDS * NBR_BUCKETS].copy_from_slice(&zero_ctx);
+    model.zero[zero_range].copy_from_slice(&zero_ctx);
     Ok(())
 }
 
@@ -889,7 +883,7 @@ fn decode_lines_3d(
     codes: &mut [i32],
 ) -> Result<()> {
     let s0 = e1 * e2;
-    let zero_range = cc * BANDS * NBR_BUCKETS..(cc + 1) * BANDS * NBR_BUCKETS;
+    let zero_range = zero_class(cc);
     let mut zero_ctx = model.zero[zero_range.clone()].to_vec();
     let band_offset = band_offsets(e0 + e1 + e2);
     let zeros = vec![0i32; e2];
@@ -946,14 +940,6 @@ fn decode_lines_3d(
     Ok(())
 }
 
-fn put_varint(out: &mut Vec<u8>, mut v: u64) {
-    while v >= 0x80 {
-        out.push((v as u8) | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
-}
-
 /// The payload in the current model ([`ContextModel::LineEnds`]).
 pub fn encode(comps: &[Coefficients]) -> Vec<u8> {
     encode_model(comps, ContextModel::LineEnds)
@@ -965,7 +951,7 @@ pub fn encode_model(comps: &[Coefficients], model: ContextModel) -> Vec<u8> {
     let mut out = Vec::new();
     for c in comps {
         for &e in &c.extent {
-            put_varint(&mut out, e as u64);
+            dct::put_varint(&mut out, e as u64);
         }
     }
     let mut rc = RangeEncoder::new();
@@ -1018,11 +1004,10 @@ pub(crate) fn decode_with(
     )?;
     let mut rc = RangeDecoder::with_preamble(&payload[pos..], model.preamble())?;
     let mut m = Model::new();
-    let lines = model == ContextModel::LineEnds;
     let mut out = Vec::with_capacity(components);
     for (k, extent) in extents.into_iter().enumerate() {
         out.push(decode_component(
-            &mut rc, &mut m, k, extent, lines, scratch,
+            &mut rc, &mut m, k, extent, model, scratch,
         )?);
     }
     if !rc.within_input() {
@@ -1224,7 +1209,7 @@ mod tests {
         for extent in [vec![3usize], vec![1, 1, 3], vec![1, 3]] {
             let mut out = Vec::new();
             for &e in &extent {
-                put_varint(&mut out, e as u64);
+                dct::put_varint(&mut out, e as u64);
             }
             let mut rc = RangeEncoder::new();
             let mut m = Model::new();

@@ -416,6 +416,15 @@ pub(crate) fn quantize_above(
     Coefficients { extent, codes }
 }
 
+/// The C-order strides of an array of shape `dims` (the last axis contiguous).
+pub(crate) fn c_strides(dims: &[usize]) -> Vec<usize> {
+    let mut strides = vec![1usize; dims.len()];
+    for a in (0..dims.len().saturating_sub(1)).rev() {
+        strides[a] = strides[a + 1] * dims[a + 1];
+    }
+    strides
+}
+
 /// The next multi-index in C order within `extent` (wrapping to all zeros after the last).
 pub(crate) fn advance(idx: &mut [usize], extent: &[usize]) {
     for a in (0..idx.len()).rev() {

@@ -30,10 +30,7 @@ pub const MAX_REFINE: u32 = 20;
 pub fn fill_invalid(planes: &mut [Vec<f64>], dims: &[usize], valid: &[bool], axis_order: &[usize]) {
     let cells: usize = dims.iter().product();
     let mut known = valid.to_vec();
-    let mut strides = vec![1usize; dims.len()];
-    for a in (0..dims.len().saturating_sub(1)).rev() {
-        strides[a] = strides[a + 1] * dims[a + 1];
-    }
+    let strides = super::dct::c_strides(dims);
     for &a in axis_order {
         let n = dims[a];
         let st = strides[a];
