@@ -10,7 +10,10 @@
 //! 3. skipping coefficient rows that are entirely zero (adding a zero product never changes a
 //!    sum that starts at +0, so the skip is exact);
 //! 4. vectorized across the lines of the pass (or across outputs for the contiguous axis),
-//!    through the portable/AVX2 dispatch of [`super::simd`] (same bits on every CPU).
+//!    through the portable/AVX2 dispatch of [`super::simd`] (same bits on every CPU);
+//! 5. for a 3-D box whose last pass is along axis 0 (MERL grids), with the intermediate of
+//!    the last pass stored tile-major, so that the pass reads each tile's rows as one block
+//!    ([`decode_tiled`]).
 //!
 //! Results differ from the reference only by f32 rounding (another summation order), far
 //! below the quantization noise: tested against the reference decoder.
@@ -202,26 +205,6 @@ fn expand_along(
     )
 }
 
-/// [`expand_along`] of axes `first` and then the other inner axis of a 3-D box, through
-/// [`slabs_impl`]: the array (from `scratch`) and its shape (e0, N1, N2).
-fn slab_expand(
-    c: &Coefficients,
-    dims: &[usize],
-    step: f64,
-    first: usize,
-    scratch: &mut DecodeScratch,
-) -> (Vec<f32>, Vec<usize>) {
-    let e = &c.extent;
-    let shape = vec![e[0], dims[1], dims[2]];
-    let mut out = scratch.take_f32(shape.iter().product());
-    let mut tmp = scratch.take_f32(0);
-    let b1 = HalfBasis::new(dims[1], e[1]);
-    let b2 = HalfBasis::new(dims[2], e[2]);
-    expand_slabs(c, step, first, &b1, &b2, &mut out, &mut tmp);
-    scratch.give_f32(tmp);
-    (out, shape)
-}
-
 /// Reconstructs one component plane (every cell) from its quantized box, in f32.
 pub fn inverse(c: &Coefficients, dims: &[usize], step: f64) -> Vec<f32> {
     let cells: usize = dims.iter().product();
@@ -280,6 +263,10 @@ pub(crate) fn decode(
         }
     }
     let (_, last, orders) = best.expect("at least one axis");
+    if d == 3 && last == 0 {
+        decode_tiled(comps, steps, dims, &orders, fin, valid, out, scratch);
+        return;
+    }
     // Every pass but the last, per component; an empty component is a box of extent 0.
     let mut inter: Vec<(Vec<f32>, usize)> = Vec::with_capacity(c);
     let mut bases: Vec<HalfBasis> = Vec::with_capacity(c);
@@ -288,11 +275,7 @@ pub(crate) fn decode(
             inter.push((Vec::new(), 0));
             bases.push(HalfBasis::new(dims[last], 0));
         } else {
-            let (a, shape) = if d == 3 && last == 0 {
-                slab_expand(q, dims, s, order[0], scratch)
-            } else {
-                expand_along(q, dims, s, &order[..d - 1], scratch)
-            };
+            let (a, shape) = expand_along(q, dims, s, &order[..d - 1], scratch);
             inter.push((a, shape.iter().product()));
             bases.push(HalfBasis::new(dims[last], q.extent[last]));
         }
@@ -312,7 +295,9 @@ pub(crate) fn decode(
 
 dispatch!(fn expand_contiguous / expand_contiguous_avx2 => contiguous_impl(src: &[f32], dst: &mut [f32], outer: usize, b: &HalfBasis));
 dispatch!(fn expand_strided / expand_strided_avx2 => strided_impl(src: &[f32], dst: &mut [f32], outer: usize, inner: usize, b: &HalfBasis));
-dispatch!(fn expand_slabs / expand_slabs_avx2 => slabs_impl(c: &Coefficients, step: f64, first: usize, b1: &HalfBasis, b2: &HalfBasis, dst: &mut [f32], tmp: &mut Vec<f32>));
+dispatch!(fn expand_slabs_tiled / expand_slabs_tiled_avx2 => slabs_tiled_impl(c: &Coefficients, step: f64, axes: &InnerAxes, tiles: &[(usize, usize)], dst: &mut [f32], bufs: &mut [Vec<f32>; 2], lists: &mut (Vec<usize>, Vec<usize>)));
+dispatch!(fn final_tiled_1 / final_tiled_1_avx2 => final_tiled_c1(inter: &[&[f32]], lists: &[(Vec<usize>, Vec<usize>)], bases: &[HalfBasis], tiles: &[(usize, usize)], fin: &Finisher, valid: &[bool], out: &mut [f32]));
+dispatch!(fn final_tiled_3 / final_tiled_3_avx2 => final_tiled_c3(inter: &[&[f32]], lists: &[(Vec<usize>, Vec<usize>)], bases: &[HalfBasis], tiles: &[(usize, usize)], fin: &Finisher, valid: &[bool], out: &mut [f32]));
 dispatch!(fn final_1 / final_1_avx2 => final_c1(inter: &[&[f32]], bases: &[HalfBasis], outer: usize, inner: usize, fin: &Finisher, valid: &[bool], out: &mut [f32]));
 dispatch!(fn final_3 / final_3_avx2 => final_c3(inter: &[&[f32]], bases: &[HalfBasis], outer: usize, inner: usize, fin: &Finisher, valid: &[bool], out: &mut [f32]));
 
@@ -420,6 +405,166 @@ fn final_pass<const C: usize>(
     }
 }
 
+#[inline(always)]
+fn final_tiled_c1(
+    i: &[&[f32]],
+    l: &[(Vec<usize>, Vec<usize>)],
+    b: &[HalfBasis],
+    t: &[(usize, usize)],
+    f: &Finisher,
+    v: &[bool],
+    out: &mut [f32],
+) {
+    final_tiled::<1>(i, l, b, t, f, v, out)
+}
+#[inline(always)]
+fn final_tiled_c3(
+    i: &[&[f32]],
+    l: &[(Vec<usize>, Vec<usize>)],
+    b: &[HalfBasis],
+    t: &[(usize, usize)],
+    f: &Finisher,
+    v: &[bool],
+    out: &mut [f32],
+) {
+    final_tiled::<3>(i, l, b, t, f, v, out)
+}
+
+/// [`final_pass`] over the tiles stored by [`slabs_tiled_impl`]: `inter[k]` component k's
+/// tiles, `lists[k]` its nonzero rows (even, odd).
+#[inline(always)]
+fn final_tiled<const C: usize>(
+    inter: &[&[f32]],
+    lists: &[(Vec<usize>, Vec<usize>)],
+    bases: &[HalfBasis],
+    tiles: &[(usize, usize)],
+    fin: &Finisher,
+    valid: &[bool],
+    out: &mut [f32],
+) {
+    let n = bases[0].n;
+    let inner: usize = valid.len() / n;
+    let mut blocks = vec![0f32; C * n * WIDE];
+    let mut base = 0;
+    for &(x0, t) in tiles {
+        let mut views: [&[f32]; C] = [&[]; C];
+        for (k, v) in views.iter_mut().enumerate() {
+            let e = bases[k].e;
+            *v = &inter[k][base * e..(base + t) * e];
+        }
+        let tile = TiledTile {
+            views,
+            lists,
+            bases,
+            inner,
+            fin,
+            valid,
+        };
+        match t {
+            WIDE => tile.run::<WIDE>(x0, &mut blocks, out),
+            8 => tile.run::<8>(x0, &mut blocks, out),
+            _ => tile.run::<1>(x0, &mut blocks, out),
+        }
+        base += t;
+    }
+}
+
+/// What one tile of [`final_tiled`] reads: `views[k]` the tile's rows of component k.
+struct TiledTile<'a, const C: usize> {
+    views: [&'a [f32]; C],
+    lists: &'a [(Vec<usize>, Vec<usize>)],
+    bases: &'a [HalfBasis],
+    inner: usize,
+    fin: &'a Finisher,
+    valid: &'a [bool],
+}
+
+impl<const C: usize> TiledTile<'_, C> {
+    /// Every component's N outputs of the tile's T cells (x0.. of each output index), then
+    /// the cells finished into `out`.
+    #[inline(always)]
+    fn run<const T: usize>(&self, x0: usize, blocks: &mut [f32], out: &mut [f32]) {
+        let n = self.bases[0].n;
+        for k in 0..C {
+            let b = &self.bases[k];
+            let blk = &mut blocks[k * n * T..(k + 1) * n * T];
+            let (ev, od) = &self.lists[k];
+            strided_tile::<T>(self.views[k], blk, T, 0, b, ev, od, T, 0);
+        }
+        let planes: [&[f32]; C] = std::array::from_fn(|k| &blocks[k * n * T..(k + 1) * n * T]);
+        self.fin
+            .run_rows::<C>(planes, n, T, x0, self.inner, self.valid, out);
+    }
+}
+
+/// [`decode`] of a 3-D box whose last pass is along axis 0 (every MERL-grid table): the
+/// inner passes slab by slab into a tile-major intermediate ([`slabs_tiled_impl`]), then
+/// the last pass and the finishing step a tile at a time ([`final_tiled`]).
+#[allow(clippy::too_many_arguments)] // `decode`'s arguments and its axis orders.
+fn decode_tiled(
+    comps: &[Coefficients],
+    steps: &[f64],
+    dims: &[usize],
+    orders: &[Vec<usize>],
+    fin: &Finisher,
+    valid: &[bool],
+    out: &mut [f32],
+    scratch: &mut DecodeScratch,
+) {
+    let tiles = final_tiles(dims[1] * dims[2]);
+    let width: usize = tiles.iter().map(|t| t.1).sum();
+    let mut bufs = [scratch.take_f32(0), scratch.take_f32(0)];
+    // Per component: its array and the range of its tiles in it, its nonzero rows (even,
+    // odd), the basis of its last pass.
+    let mut inter: Vec<(Vec<f32>, std::ops::Range<usize>)> = Vec::with_capacity(comps.len());
+    let mut lists: Vec<(Vec<usize>, Vec<usize>)> = Vec::with_capacity(comps.len());
+    let mut bases: Vec<HalfBasis> = Vec::with_capacity(comps.len());
+    for ((q, &s), order) in comps.iter().zip(steps).zip(orders) {
+        let mut rows = (Vec::new(), Vec::new());
+        let mut a = scratch.take_f32(0);
+        let mut range = 0..0;
+        if q.codes.is_empty() || q.extent.len() != 3 {
+            bases.push(HalfBasis::new(dims[0], 0));
+        } else {
+            let len = width * q.extent[0];
+            // 16 floats of slack, so that the tiles can start on a 64-byte boundary.
+            DecodeScratch::grow(&mut a, len + 16);
+            let off = (64 - a.as_ptr() as usize % 64) % 64 / 4;
+            range = off..off + len;
+            let axes = InnerAxes {
+                first: order[0],
+                b1: HalfBasis::new(dims[1], q.extent[1]),
+                b2: HalfBasis::new(dims[2], q.extent[2]),
+            };
+            expand_slabs_tiled(
+                q,
+                s,
+                &axes,
+                &tiles,
+                &mut a[range.clone()],
+                &mut bufs,
+                &mut rows,
+            );
+            bases.push(HalfBasis::new(dims[0], q.extent[0]));
+        }
+        inter.push((a, range));
+        lists.push(rows);
+    }
+    let views: Vec<&[f32]> = inter.iter().map(|(a, r)| &a[r.clone()]).collect();
+    if comps.len() == 1 {
+        final_tiled_1(&views, &lists, &bases, &tiles, fin, valid, out);
+    } else {
+        final_tiled_3(&views, &lists, &bases, &tiles, fin, valid, out);
+    }
+    // In reverse, so that the next decode takes each array back for the same component.
+    for (a, _) in inter.into_iter().rev() {
+        scratch.give_f32(a);
+    }
+    let [tmp, plane] = bufs;
+    scratch.give_f32(plane);
+    scratch.give_f32(tmp);
+}
+
 /// Lines per tile of the strided kernels.
 const WIDE: usize = 32;
 
@@ -448,44 +593,10 @@ impl FinalTile<'_> {
             let blk = &mut blocks[k * n * T..(k + 1) * n * T];
             strided_tile::<T>(s, blk, inner, x0, b, &self.evens[k], &self.odds[k], T, 0);
         }
-        for j in 0..n {
-            let f = (self.o * n + j) * inner + x0;
-            prefetch_next(self.valid, out, f + T, T, C);
-            let mut planes: [&[f32]; C] = [&[]; C];
-            for (k, p) in planes.iter_mut().enumerate() {
-                *p = &blocks[k * n * T + j * T..k * n * T + (j + 1) * T];
-            }
-            self.fin.run::<C>(
-                planes,
-                f,
-                &self.valid[f..f + T],
-                &mut out[f * C..(f + T) * C],
-            );
-        }
-    }
-}
-
-/// Starts loading the validity and output of cells `f..f + t` (the next tile's cells of the
-/// same output index): each tile of the strided last pass finishes its cells in n runs of t
-/// cells a grid line apart, more streams than the hardware prefetchers follow, so every run
-/// began with a miss on the validity.
-#[inline(always)]
-fn prefetch_next(valid: &[bool], out: &[f32], f: usize, t: usize, c: usize) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        if f + t <= valid.len() {
-            // SAFETY: prefetches never fault; the addresses are inside the slices anyway.
-            unsafe {
-                _mm_prefetch::<_MM_HINT_T0>(valid.as_ptr().add(f) as *const i8);
-                let o = out.as_ptr().add(f * c) as *const i8;
-                let mut b = 0;
-                while b < t * c * 4 {
-                    _mm_prefetch::<_MM_HINT_T0>(o.add(b));
-                    b += 64;
-                }
-            }
-        }
+        let planes: [&[f32]; C] = std::array::from_fn(|k| &blocks[k * n * T..(k + 1) * n * T]);
+        let first = self.o * n * inner + x0;
+        self.fin
+            .run_rows::<C>(planes, n, T, first, inner, self.valid, out);
     }
 }
 
@@ -659,39 +770,64 @@ fn strided_tiles(
     }
 }
 
-/// The two inner axes of a 3-D box expanded one k0 slab at a time (the last pass is then
-/// along axis 0): slab k0 of the codes (e1 × e2) becomes plane k0 of `dst` (N1 × N2), the
-/// first of the two axes being `first` (1 or 2). The kernels, rows and summation order are
-/// those of expanding the whole box axis by axis, so the bits are the same; but the slab's
-/// intermediate stays in cache, and the code lines that are all zero (most of a DCT box)
-/// are skipped instead of dequantized, expanded to zeros, written and scanned again.
-#[inline(always)]
-fn slabs_impl(
-    c: &Coefficients,
-    step: f64,
-    first: usize,
-    b1: &HalfBasis,
-    b2: &HalfBasis,
-    dst: &mut [f32],
-    tmp: &mut Vec<f32>,
-) {
-    let (codes, extent) = (&c.codes, &c.extent);
-    let (e1, e2) = (extent[1], extent[2]);
-    let (n1, n2) = (b1.n, b2.n);
-    let mut even = Vec::with_capacity(e1);
-    let mut odd = Vec::with_capacity(e1);
-    let mut line_even = Vec::with_capacity(e2);
-    let mut line_odd = Vec::with_capacity(e2);
-    let hp = b1.hp.max(b2.hp);
-    let (mut ev, mut od) = (vec![0f32; hp], vec![0f32; hp]);
-    // Dequantized as `expand_along` does.
-    let mut deq = vec![0f32; e1 * e2];
-    let tmp_len = if first == 2 { e1 * n2 } else { n1 * e2 };
-    if tmp.len() < tmp_len {
-        tmp.resize(tmp_len, 0.0);
+/// The scratch of [`slabs_tiled_impl`].
+struct SlabWork {
+    even: Vec<usize>,
+    odd: Vec<usize>,
+    line_even: Vec<(usize, f32)>,
+    line_odd: Vec<(usize, f32)>,
+    ev: Vec<f32>,
+    od: Vec<f32>,
+    deq: Vec<f32>,
+}
+
+impl SlabWork {
+    #[inline(always)]
+    fn new(
+        c: &Coefficients,
+        first: usize,
+        b1: &HalfBasis,
+        b2: &HalfBasis,
+        tmp: &mut Vec<f32>,
+    ) -> SlabWork {
+        let (e1, e2) = (c.extent[1], c.extent[2]);
+        let hp = b1.hp.max(b2.hp);
+        let tmp_len = if first == 2 { e1 * b2.n } else { b1.n * e2 };
+        if tmp.len() < tmp_len {
+            tmp.resize(tmp_len, 0.0);
+        }
+        SlabWork {
+            even: Vec::with_capacity(e1),
+            odd: Vec::with_capacity(e1),
+            line_even: Vec::with_capacity(e2),
+            line_odd: Vec::with_capacity(e2),
+            ev: vec![0f32; hp],
+            od: vec![0f32; hp],
+            // Dequantized as `expand_along` does.
+            deq: vec![0f32; e1 * e2],
+        }
     }
-    for (k0, plane) in dst.chunks_exact_mut(n1 * n2).enumerate().take(extent[0]) {
+
+    /// Slab k0 of the codes into `plane` (N1 × N2); false, and `plane` all zero, when the
+    /// slab holds no nonzero code.
+    #[allow(clippy::too_many_arguments)] // The pass's whole state.
+    #[inline(always)]
+    fn expand(
+        &mut self,
+        c: &Coefficients,
+        k0: usize,
+        step: f64,
+        first: usize,
+        b1: &HalfBasis,
+        b2: &HalfBasis,
+        tmp: &mut [f32],
+        plane: &mut [f32],
+    ) -> bool {
+        let (codes, extent) = (&c.codes, &c.extent);
+        let (e1, e2) = (extent[1], extent[2]);
+        let (n1, n2) = (b1.n, b2.n);
         let slab = &codes[k0 * e1 * e2..(k0 + 1) * e1 * e2];
+        let (even, odd) = (&mut self.even, &mut self.odd);
         even.clear();
         odd.clear();
         for k1 in 0..e1 {
@@ -700,7 +836,7 @@ fn slabs_impl(
             if cl.iter().fold(0, |a, &q| a | q) == 0 {
                 continue;
             }
-            let dl = &mut deq[k1 * e2..(k1 + 1) * e2];
+            let dl = &mut self.deq[k1 * e2..(k1 + 1) * e2];
             for (d, &q) in dl.iter_mut().zip(cl) {
                 *d = (q as f64 * step) as f32;
             }
@@ -713,29 +849,151 @@ fn slabs_impl(
         if first == 2 {
             // Along axis 2 (contiguous), the nonempty lines only; then along axis 1 over the
             // rows they became (the others are zero rows, which the strided pass skips).
-            for &k1 in even.iter().chain(&odd) {
+            for &k1 in even.iter().chain(odd.iter()) {
                 contiguous_line(
-                    &deq[k1 * e2..(k1 + 1) * e2],
+                    &self.deq[k1 * e2..(k1 + 1) * e2],
                     b2,
                     &mut tmp[k1 * n2..(k1 + 1) * n2],
-                    &mut ev,
-                    &mut od,
-                    &mut line_even,
-                    &mut line_odd,
+                    &mut self.ev,
+                    &mut self.od,
+                    &mut self.line_even,
+                    &mut self.line_odd,
                 );
             }
-            strided_tiles(&tmp[..e1 * n2], plane, n2, b1, &even, &odd);
+            strided_tiles(&tmp[..e1 * n2], plane, n2, b1, even, odd);
         } else {
             // Along axis 1 (rows of e2 values), then each of the N1 lines along axis 2.
-            strided_tiles(&deq, &mut tmp[..n1 * e2], e2, b1, &even, &odd);
+            strided_tiles(&self.deq, &mut tmp[..n1 * e2], e2, b1, even, odd);
             for (src, d) in tmp[..n1 * e2]
                 .chunks_exact(e2)
                 .zip(plane.chunks_exact_mut(n2))
             {
-                contiguous_line(src, b2, d, &mut ev, &mut od, &mut line_even, &mut line_odd);
+                contiguous_line(
+                    src,
+                    b2,
+                    d,
+                    &mut self.ev,
+                    &mut self.od,
+                    &mut self.line_even,
+                    &mut self.line_odd,
+                );
             }
         }
+        !(even.is_empty() && odd.is_empty())
     }
+}
+
+/// The tiles of the fused last pass along the inner cells: (x0, width), as
+/// [`final_pass`] visits them.
+fn final_tiles(inner: usize) -> Vec<(usize, usize)> {
+    let mut v = Vec::new();
+    let mut x0 = 0;
+    while x0 + WIDE <= inner {
+        v.push((x0, WIDE));
+        x0 += WIDE;
+    }
+    while x0 + 8 <= inner {
+        v.push((x0, 8));
+        x0 += 8;
+    }
+    if x0 < inner && inner >= 8 {
+        v.push((inner - 8, 8));
+        x0 = inner;
+    }
+    while x0 < inner {
+        v.push((x0, 1));
+        x0 += 1;
+    }
+    v
+}
+
+/// The inner axes of a 3-D box: the one expanded first (1 or 2) and the bases of axes 1, 2.
+struct InnerAxes {
+    first: usize,
+    b1: HalfBasis,
+    b2: HalfBasis,
+}
+
+/// The two inner axes of a 3-D box expanded one k0 slab at a time (the last pass is then
+/// along axis 0): slab k0 of the codes (e1 × e2) becomes plane k0 (N1 × N2), the first of the
+/// two axes being `first` (1 or 2). The kernels, rows and summation order are those of
+/// expanding the whole box axis by axis, so the bits are the same; but the slab's
+/// intermediate stays in cache, and the code lines that are all zero (most of a DCT box) are
+/// skipped instead of dequantized, expanded to zeros, written and scanned again.
+///
+/// Each plane is built in `plane` (in cache) and stored into `dst` tile by tile of
+/// [`final_tiles`]: tile t's rows k0 are contiguous, `width` values each, from
+/// e0 × (the widths of the tiles before it). The last pass then reads a tile's rows as one
+/// block, where the plane-major layout had it read e0 lines a plane (64 KB for a MERL grid)
+/// apart, more streams than the prefetchers follow; and the stores are non-temporal, so the
+/// planes (5.8 MB per component of a MERL table) do not evict the expansion's working set.
+/// Planes of empty slabs are not stored; the others are listed in `lists` (even, odd) by parity
+/// of k0 (the rows the last pass visits).
+#[inline(always)]
+fn slabs_tiled_impl(
+    c: &Coefficients,
+    step: f64,
+    axes: &InnerAxes,
+    tiles: &[(usize, usize)],
+    dst: &mut [f32],
+    bufs: &mut [Vec<f32>; 2],
+    lists: &mut (Vec<usize>, Vec<usize>),
+) {
+    let (b1, b2, first) = (&axes.b1, &axes.b2, axes.first);
+    let [tmp, plane] = bufs;
+    let (even, odd) = lists;
+    let e0 = c.extent[0];
+    let mut w = SlabWork::new(c, first, b1, b2, tmp);
+    DecodeScratch::grow(plane, b1.n * b2.n);
+    for k0 in 0..e0 {
+        if !w.expand(c, k0, step, first, b1, b2, tmp, &mut plane[..b1.n * b2.n]) {
+            continue;
+        }
+        if k0 % 2 == 0 {
+            even.push(k0);
+        } else {
+            odd.push(k0);
+        }
+        let mut base = 0;
+        for &(x0, t) in tiles {
+            let d = &mut dst[base + k0 * t..base + (k0 + 1) * t];
+            if t % 8 == 0 {
+                stream_copy(d, &plane[x0..x0 + t]);
+            } else {
+                d.copy_from_slice(&plane[x0..x0 + t]);
+            }
+            base += e0 * t;
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a fence has no preconditions.
+    unsafe {
+        std::arch::x86_64::_mm_sfence()
+    };
+}
+
+/// `dst` = `src` (a multiple of 8 values) with non-temporal stores when `dst` is 32-byte
+/// aligned: the planes are read back by the last pass only after every slab is expanded,
+/// so keeping them in cache evicts what the expansion is using.
+#[inline(always)]
+fn stream_copy(dst: &mut [f32], src: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::codec::simd::avx2() && (dst.as_ptr() as usize).is_multiple_of(32) {
+        use std::arch::x86_64::{_mm256_loadu_ps, _mm256_stream_ps};
+        assert!(dst.len() == src.len() && dst.len().is_multiple_of(8));
+        for i in (0..dst.len()).step_by(8) {
+            // SAFETY: i + 8 ≤ len for both slices (asserted); `dst + i` is 32-byte aligned;
+            // the CPU has AVX (checked).
+            unsafe {
+                _mm256_stream_ps(
+                    dst.as_mut_ptr().add(i),
+                    _mm256_loadu_ps(src.as_ptr().add(i)),
+                )
+            };
+        }
+        return;
+    }
+    dst.copy_from_slice(src);
 }
 
 /// acc[p][l] += w(k)[p] × s[k·inner + x0 + l] over the rows k (Q outputs per loaded tile:
@@ -932,47 +1190,110 @@ mod tests {
         }
     }
 
-    /// The slab-wise expansion of the two inner axes gives the axis-by-axis expansion's bits,
-    /// for both axis orders, on boxes with empty lines, empty slabs and odd resolutions.
+    /// Codes of a box `extent` with empty slabs (k0 = 1), empty lines (every third) and the
+    /// rest 30% nonzero.
+    fn sparse_box(extent: [usize; 3], seed: u64) -> Coefficients {
+        let total: usize = extent.iter().product();
+        let mut rng = crate::math::SplitMix64::new(seed);
+        let codes: Vec<i32> = (0..total)
+            .map(|i| {
+                let (k0, line) = (i / (extent[1] * extent[2]), i / extent[2]);
+                if k0 == 1 || line % 3 == 2 || rng.next_f64() > 0.3 {
+                    0
+                } else {
+                    (rng.next_f64() * 200.0 - 100.0) as i32
+                }
+            })
+            .collect();
+        Coefficients {
+            extent: extent.to_vec(),
+            codes,
+        }
+    }
+
+    /// The tiled decode (slab-wise inner passes into a tile-major intermediate, then the last
+    /// pass a tile at a time) gives the bits of expanding the inner axes axis by axis and
+    /// running the plane-major last pass, for both inner axis orders, 1 and 3 components, an
+    /// empty component, odd resolutions and a row narrower than a tile.
     #[test]
-    fn slabs_give_the_axis_by_axis_bits() {
-        for (dims, extent) in [
-            ([7usize, 9, 13], [5usize, 6, 11]),
-            ([90, 90, 180], [12, 30, 61]),
-        ] {
-            let total: usize = extent.iter().product();
-            let mut rng = crate::math::SplitMix64::new(11);
-            let codes: Vec<i32> = (0..total)
-                .map(|i| {
-                    let (k0, line) = (i / (extent[1] * extent[2]), i / extent[2]);
-                    // Slab 1 empty, every third line empty, the rest 30% nonzero.
-                    if k0 == 1 || line % 3 == 2 || rng.next_f64() > 0.3 {
-                        0
-                    } else {
-                        (rng.next_f64() * 200.0 - 100.0) as i32
-                    }
-                })
+    fn tiled_decode_gives_the_plane_major_bits() {
+        let cases: [([usize; 3], [[usize; 3]; 3]); 3] = [
+            ([7, 9, 13], [[5, 6, 11], [3, 9, 4], [0, 0, 0]]),
+            ([90, 90, 180], [[12, 30, 61], [40, 7, 9], [9, 20, 37]]),
+            ([5, 3, 2], [[4, 2, 2], [5, 3, 1], [1, 1, 1]]),
+        ];
+        for (dims, extents) in cases {
+            let comps: Vec<Coefficients> = extents
+                .iter()
+                .enumerate()
+                .map(|(k, &e)| sparse_box(e, 11 + k as u64))
                 .collect();
-            let c = Coefficients {
-                extent: extent.to_vec(),
-                codes,
-            };
-            for (first, second) in [(2, 1), (1, 2)] {
-                let mut scratch = DecodeScratch::default();
-                let (a, shape_a) = slab_expand(&c, &dims, 0.37, first, &mut scratch);
-                let (b, shape_b) = expand_along(&c, &dims, 0.37, &[first, second], &mut scratch);
-                assert_eq!(shape_a, shape_b);
-                let n: usize = shape_a.iter().product();
-                let differ = a[..n]
-                    .iter()
-                    .zip(&b[..n])
-                    .filter(|(x, y)| x.to_bits() != y.to_bits())
-                    .count();
-                assert_eq!(
-                    differ, 0,
-                    "{differ} of {n} values differ, first axis {first}"
-                );
-                assert!(b[..n].iter().any(|&v| v != 0.0));
+            let steps = [0.37, 0.05, 1.3];
+            let cells: usize = dims.iter().product();
+            let mut rng = crate::math::SplitMix64::new(5);
+            let valid: Vec<bool> = (0..cells).map(|_| rng.next_f64() > 0.2).collect();
+            for c in [3usize, 1] {
+                let fin = if c == 3 {
+                    Finisher::with_colour_log(
+                        vec![0.5, 0.3, 0.2, 0.1, -0.4, 0.3, 0.2, 0.1, -0.5],
+                        vec![1e-3, 2e-3, 4e-3],
+                    )
+                } else {
+                    Finisher::with_colour_log(vec![1.0], vec![1e-3])
+                };
+                for orders in [
+                    [[2, 1, 0], [1, 2, 0], [2, 1, 0]],
+                    [[1, 2, 0], [2, 1, 0], [1, 2, 0]],
+                ] {
+                    let orders: Vec<Vec<usize>> = orders[..c].iter().map(|o| o.to_vec()).collect();
+                    let mut scratch = DecodeScratch::default();
+                    let mut tiled = vec![f32::NAN; cells * c];
+                    decode_tiled(
+                        &comps[..c],
+                        &steps[..c],
+                        &dims,
+                        &orders,
+                        &fin,
+                        &valid,
+                        &mut tiled,
+                        &mut scratch,
+                    );
+                    // The plane-major reference: inner axes one after the other, then the
+                    // last pass over whole planes.
+                    let mut planes = Vec::new();
+                    let mut bases = Vec::new();
+                    for ((q, &s), o) in comps[..c].iter().zip(&steps).zip(&orders) {
+                        if q.codes.is_empty() {
+                            planes.push(Vec::new());
+                            bases.push(HalfBasis::new(dims[0], 0));
+                        } else {
+                            let (a, shape) = expand_along(q, &dims, s, &o[..2], &mut scratch);
+                            let n: usize = shape.iter().product();
+                            planes.push(a[..n].to_vec());
+                            bases.push(HalfBasis::new(dims[0], q.extent[0]));
+                        }
+                    }
+                    let views: Vec<&[f32]> = planes.iter().map(|p| p.as_slice()).collect();
+                    let mut plain = vec![f32::NAN; cells * c];
+                    let inner = dims[1] * dims[2];
+                    if c == 3 {
+                        final_3(&views, &bases, 1, inner, &fin, &valid, &mut plain);
+                    } else {
+                        final_1(&views, &bases, 1, inner, &fin, &valid, &mut plain);
+                    }
+                    let differ = tiled
+                        .iter()
+                        .zip(&plain)
+                        .filter(|(x, y)| x.to_bits() != y.to_bits())
+                        .count();
+                    assert_eq!(
+                        differ,
+                        0,
+                        "{differ} of {} values differ, dims {dims:?}, {c} components, orders {orders:?}",
+                        tiled.len()
+                    );
+                    assert!(plain.iter().any(|&v| v > 0.0));
+                }
             }
         }
     }

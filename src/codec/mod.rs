@@ -672,10 +672,15 @@ impl DecodeScratch {
 
     /// Exactly `n` zeros.
     pub(crate) fn take_i32_zeroed(&mut self, n: usize) -> Vec<i32> {
-        let mut v = self.i32s.pop().unwrap_or_default();
-        v.clear();
-        v.resize(n, 0);
-        v
+        match self.i32s.pop() {
+            // As in `grow`: a fresh array comes zeroed from the allocator.
+            None => vec![0; n],
+            Some(mut v) => {
+                v.clear();
+                v.resize(n, 0);
+                v
+            }
+        }
     }
 
     pub(crate) fn give_i32(&mut self, v: Vec<i32>) {
@@ -684,7 +689,12 @@ impl DecodeScratch {
 
     /// `v` at least `n` long; it never shrinks, so a reused array is not written again.
     pub(crate) fn grow(v: &mut Vec<f32>, n: usize) {
-        if v.len() < n {
+        if v.capacity() == 0 {
+            // A fresh array through the allocator's zeroed path: large ones are new pages,
+            // already zero, where `resize` wrote every value (17 MB, ~2 ms, for the
+            // intermediate of a MERL table decoded with a fresh scratch).
+            *v = vec![0.0; n];
+        } else if v.len() < n {
             v.resize(n, 0.0);
         }
     }

@@ -101,37 +101,86 @@ pub fn exp_f32(x: f32) -> f32 {
     y * f32::from_bits(e as u32) * scale
 }
 
-/// [`exp_f32`] on 8 lanes: the same operations in the same order.
+/// The broadcast constants of [`Finisher::blocks_avx2`].
+#[cfg(target_arch = "x86_64")]
+struct BlockConsts<const C: usize> {
+    m: [[std::arch::x86_64::__m256; C]; C],
+    eps: [std::arch::x86_64::__m256; C],
+    idx: [std::arch::x86_64::__m256i; 3],
+}
+
+/// [`exp_f32`] of G × C vectors of 8 lanes: the same operations in the same order per lane,
+/// each step applied to every vector before the next (see [`Finisher::finish_group`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn exp_avx2(x: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
+fn exp_avx2_n<const C: usize, const G: usize>(
+    x: [[std::arch::x86_64::__m256; C]; G],
+) -> [[std::arch::x86_64::__m256; C]; G] {
     use std::arch::x86_64::*;
     let c = _mm256_set1_ps;
-    let small = _mm256_cmp_ps::<_CMP_LT_OQ>(x, c(EXP_MIN));
-    let x = _mm256_blendv_ps(x, _mm256_add_ps(x, c(EXP_SMALL_SHIFT)), small);
-    let scale = _mm256_blendv_ps(c(1.0), c(EXP_SMALL_SCALE), small);
-    let x = _mm256_min_ps(_mm256_max_ps(x, c(EXP_MIN)), c(EXP_MAX));
-    let t = _mm256_add_ps(_mm256_mul_ps(x, c(std::f32::consts::LOG2_E)), c(EXP_MAGIC));
-    let n = _mm256_sub_ps(t, c(EXP_MAGIC));
-    let r = _mm256_sub_ps(x, _mm256_mul_ps(n, c(EXP_LN2_HI)));
-    let r = _mm256_sub_ps(r, _mm256_mul_ps(n, c(EXP_LN2_LO)));
-    let mut p = c(EXP_POLY[0]);
-    for &k in &EXP_POLY[1..] {
-        p = _mm256_add_ps(_mm256_mul_ps(p, r), c(k));
+    // Loops, not closures: a closure would not inherit the AVX2 target feature.
+    let mut small = x;
+    let mut xs = x;
+    let mut scale = [[c(1.0); C]; G];
+    let mut t = x;
+    let mut r = x;
+    let mut p = [[c(EXP_POLY[0]); C]; G];
+    let mut out = x;
+    for g in 0..G {
+        for k in 0..C {
+            small[g][k] = _mm256_cmp_ps::<_CMP_LT_OQ>(x[g][k], c(EXP_MIN));
+            xs[g][k] = _mm256_blendv_ps(
+                x[g][k],
+                _mm256_add_ps(x[g][k], c(EXP_SMALL_SHIFT)),
+                small[g][k],
+            );
+            scale[g][k] = _mm256_blendv_ps(c(1.0), c(EXP_SMALL_SCALE), small[g][k]);
+            xs[g][k] = _mm256_min_ps(_mm256_max_ps(xs[g][k], c(EXP_MIN)), c(EXP_MAX));
+        }
     }
-    let y = _mm256_add_ps(
-        _mm256_add_ps(_mm256_mul_ps(p, _mm256_mul_ps(r, r)), r),
-        c(1.0),
-    );
-    let e = _mm256_slli_epi32::<23>(_mm256_add_epi32(
-        _mm256_sub_epi32(
-            _mm256_castps_si256(t),
-            _mm256_set1_epi32(EXP_MAGIC.to_bits() as i32),
-        ),
-        _mm256_set1_epi32(127),
-    ));
-    _mm256_mul_ps(_mm256_mul_ps(y, _mm256_castsi256_ps(e)), scale)
+    for g in 0..G {
+        for k in 0..C {
+            t[g][k] = _mm256_add_ps(
+                _mm256_mul_ps(xs[g][k], c(std::f32::consts::LOG2_E)),
+                c(EXP_MAGIC),
+            );
+        }
+    }
+    for g in 0..G {
+        for k in 0..C {
+            let n = _mm256_sub_ps(t[g][k], c(EXP_MAGIC));
+            r[g][k] = _mm256_sub_ps(xs[g][k], _mm256_mul_ps(n, c(EXP_LN2_HI)));
+            r[g][k] = _mm256_sub_ps(r[g][k], _mm256_mul_ps(n, c(EXP_LN2_LO)));
+        }
+    }
+    for &q in &EXP_POLY[1..] {
+        for g in 0..G {
+            for k in 0..C {
+                p[g][k] = _mm256_add_ps(_mm256_mul_ps(p[g][k], r[g][k]), c(q));
+            }
+        }
+    }
+    for g in 0..G {
+        for k in 0..C {
+            let y = _mm256_add_ps(
+                _mm256_add_ps(
+                    _mm256_mul_ps(p[g][k], _mm256_mul_ps(r[g][k], r[g][k])),
+                    r[g][k],
+                ),
+                c(1.0),
+            );
+            let e = _mm256_slli_epi32::<23>(_mm256_add_epi32(
+                _mm256_sub_epi32(
+                    _mm256_castps_si256(t[g][k]),
+                    _mm256_set1_epi32(EXP_MAGIC.to_bits() as i32),
+                ),
+                _mm256_set1_epi32(127),
+            ));
+            out[g][k] = _mm256_mul_ps(_mm256_mul_ps(y, _mm256_castsi256_ps(e)), scale[g][k]);
+        }
+    }
+    out
 }
 
 /// Cells per block of [`Finisher::run`]: one AVX2 register of f32.
@@ -176,6 +225,32 @@ impl Finisher {
         }
     }
 
+    /// A finisher with colour matrix `m` (C × C) and the log curve's `eps`, for tests.
+    #[cfg(test)]
+    pub(crate) fn with_colour_log(m: Vec<f32>, eps: Vec<f32>) -> Finisher {
+        Finisher {
+            c: eps.len(),
+            m,
+            eps: Some(eps),
+            colour: true,
+            rw: None,
+            avx2: avx2(),
+        }
+    }
+
+    /// A copy, without the hand-vectorized blocks when `portable`.
+    #[cfg(test)]
+    fn clone_portable(&self, portable: bool) -> Finisher {
+        Finisher {
+            c: self.c,
+            m: self.m.clone(),
+            eps: self.eps.clone(),
+            colour: self.colour,
+            rw: self.rw.clone(),
+            avx2: self.avx2 && !portable,
+        }
+    }
+
     /// The same finisher without the hand-vectorized blocks (tests compare the two).
     #[cfg(test)]
     pub(crate) fn portable(mut self) -> Finisher {
@@ -188,6 +263,68 @@ impl Finisher {
     /// blocks of [`LANES`] cells take a fixed-size path (no variable-length copies, the
     /// validity applied as a bit mask, the interleave through a fixed-size staging array), the
     /// tail the general one; both perform the same arithmetic per cell, so the same bits.
+    /// The colour matrix as `mm[i][k]` (y_k = Σ_i mm[i][k] z_i) and the curve's ε per
+    /// component (0 for the linear curve), in fixed-size arrays.
+    #[inline(always)]
+    fn constants<const C: usize>(&self) -> ([[f32; C]; C], [f32; C]) {
+        let mut mm = [[0f32; C]; C];
+        for i in 0..C {
+            for k in 0..C {
+                mm[i][k] = self.m[i * C + k];
+            }
+        }
+        let ee: [f32; C] = std::array::from_fn(|k| self.eps.as_ref().map_or(0.0, |e| e[k]));
+        (mm, ee)
+    }
+
+    /// `rows` runs of `cells` cells, run j being cells first + j·stride.. of the layout, held
+    /// by `planes` (run j at values j·cells..): as [`Finisher::run`] on each run, through one
+    /// call of the AVX2 blocks when the runs are whole blocks (their setup once, not per run).
+    #[allow(clippy::too_many_arguments)] // The rows' geometry.
+    #[inline(always)]
+    pub(crate) fn run_rows<const C: usize>(
+        &self,
+        planes: [&[f32]; C],
+        rows: usize,
+        cells: usize,
+        first: usize,
+        stride: usize,
+        valid: &[bool],
+        out: &mut [f32],
+    ) {
+        if rows == 0 {
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2
+            && self.rw.is_none()
+            && (C == 1 || C == 3)
+            && cells > 0
+            && cells.is_multiple_of(LANES)
+        {
+            let (mm, ee) = self.constants::<C>();
+            // SAFETY: `avx2` is set only when the CPU reports AVX2.
+            unsafe {
+                self.blocks_avx2::<C>(
+                    &mm,
+                    &ee,
+                    planes,
+                    rows,
+                    cells,
+                    stride,
+                    &valid[first..],
+                    &mut out[first * C..],
+                )
+            };
+            return;
+        }
+        for j in 0..rows {
+            let f = first + j * stride;
+            let p: [&[f32]; C] = std::array::from_fn(|k| &planes[k][j * cells..(j + 1) * cells]);
+            self.run::<C>(p, f, &valid[f..f + cells], &mut out[f * C..(f + cells) * C]);
+        }
+    }
+
     #[inline(always)]
     pub(crate) fn run<const C: usize>(
         &self,
@@ -199,19 +336,13 @@ impl Finisher {
         debug_assert_eq!(self.c, C);
         let cells = valid.len();
         let rw = self.rw.as_deref().map(|r| &r[first..first + cells]);
-        let mut mm = [[0f32; C]; C];
-        for i in 0..C {
-            for k in 0..C {
-                mm[i][k] = self.m[i * C + k];
-            }
-        }
-        let ee: [f32; C] = std::array::from_fn(|k| self.eps.as_ref().map_or(0.0, |e| e[k]));
+        let (mm, ee) = self.constants::<C>();
         let full = cells - cells % LANES;
         let mut f0 = 0;
         #[cfg(target_arch = "x86_64")]
         if self.avx2 && rw.is_none() && (C == 1 || C == 3) && full > 0 {
             // SAFETY: `avx2` is set only when the CPU reports AVX2.
-            unsafe { self.blocks_avx2::<C>(&mm, &ee, planes, &valid[..full], out) };
+            unsafe { self.blocks_avx2::<C>(&mm, &ee, planes, 1, full, 0, &valid[..full], out) };
             f0 = full;
             if full < cells {
                 // The tail as one block overlapping the last whole one (a MERL line of 180
@@ -220,7 +351,18 @@ impl Finisher {
                 let t0 = cells - LANES;
                 let tail: [&[f32]; C] = std::array::from_fn(|k| &planes[k][t0..]);
                 // SAFETY: as above.
-                unsafe { self.blocks_avx2::<C>(&mm, &ee, tail, &valid[t0..], &mut out[t0 * C..]) };
+                unsafe {
+                    self.blocks_avx2::<C>(
+                        &mm,
+                        &ee,
+                        tail,
+                        1,
+                        LANES,
+                        0,
+                        &valid[t0..],
+                        &mut out[t0 * C..],
+                    )
+                };
                 return;
             }
         }
@@ -293,101 +435,185 @@ impl Finisher {
     /// The whole blocks of [`Finisher::run`] for 1 or 3 unweighted components, written with
     /// AVX2 intrinsics: the autovectorized block spilled its lanes to the stack to interleave
     /// the channels (a third of the decode of a MERL table). Every lane performs the portable
-    /// block's IEEE operations in the same order (`exp_avx2` mirrors [`exp_f32`]; `vmaxps`
+    /// block's IEEE operations in the same order (`exp_avx2_n` mirrors [`exp_f32`]; `vmaxps`
     /// and `vminps` are the selects written there), so the bits are the same.
+    ///
+    /// `rows` runs of `cells` cells: run j at cell j·`stride` of `valid` and `out`, and at
+    /// value j·`cells` of each plane.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     #[inline]
+    #[allow(clippy::too_many_arguments)] // The rows' geometry.
     unsafe fn blocks_avx2<const C: usize>(
         &self,
         mm: &[[f32; C]; C],
         ee: &[f32; C],
         planes: [&[f32]; C],
+        rows: usize,
+        cells: usize,
+        stride: usize,
         valid: &[bool],
         out: &mut [f32],
     ) {
         use std::arch::x86_64::*;
-        let cells = valid.len();
+        let span = (rows.max(1) - 1) * stride + cells;
         assert!(cells.is_multiple_of(LANES) && (C == 1 || C == 3));
-        assert!(planes.iter().all(|p| p.len() >= cells) && out.len() >= cells * C);
+        assert!(planes.iter().all(|p| p.len() >= rows * cells));
+        assert!(valid.len() >= span && out.len() >= span * C);
         // No closures in here: they would not inherit the AVX2 target feature, and the
         // intrinsics inside them would become calls.
         let zero = _mm256_setzero_ps();
-        let max = _mm256_set1_ps(f32::MAX);
-        let mut eps = [zero; C];
-        let mut m = [[zero; C]; C];
-        for k in 0..C {
-            eps[k] = _mm256_set1_ps(ee[k]);
+        let mut k = BlockConsts {
+            m: [[zero; C]; C],
+            eps: [zero; C],
+            idx: [
+                _mm256_setr_epi32(0, 0, 0, 1, 1, 1, 2, 2),
+                _mm256_setr_epi32(2, 3, 3, 3, 4, 4, 4, 5),
+                _mm256_setr_epi32(5, 5, 6, 6, 6, 7, 7, 7),
+            ],
+        };
+        for c in 0..C {
+            k.eps[c] = _mm256_set1_ps(ee[c]);
             for i in 0..C {
-                m[i][k] = _mm256_set1_ps(mm[i][k]);
+                k.m[i][c] = _mm256_set1_ps(mm[i][c]);
             }
         }
-        let log = self.eps.is_some();
-        // Channel interleave of 3 components: output vector j takes lane l from cell
-        // (8j + l) / 3, channel (8j + l) % 3.
-        let idx = [
-            _mm256_setr_epi32(0, 0, 0, 1, 1, 1, 2, 2),
-            _mm256_setr_epi32(2, 3, 3, 3, 4, 4, 4, 5),
-            _mm256_setr_epi32(5, 5, 6, 6, 6, 7, 7, 7),
-        ];
-        let mut f0 = 0;
-        while f0 < cells {
-            // SAFETY (every pointer access below): f0 + LANES ≤ cells, and the planes, the
-            // validity and `out` (C values per cell) hold at least `cells` cells (asserted).
-            let ok = unsafe { (valid.as_ptr().add(f0) as *const u64).read_unaligned() };
-            let dst = unsafe { out.as_mut_ptr().add(f0 * C) };
-            if ok == 0 {
-                for j in 0..C {
-                    unsafe { _mm256_storeu_ps(dst.add(j * LANES), zero) };
-                }
-                f0 += LANES;
-                continue;
-            }
-            // `bool` is 0 or 1: a lane is valid when its byte is nonzero.
-            let mask = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
-                _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(ok as i64)),
-                _mm256_setzero_si256(),
-            ));
-            let mut z = [zero; C];
-            for k in 0..C {
-                z[k] = unsafe { _mm256_loadu_ps(planes[k].as_ptr().add(f0)) };
-            }
-            let mut y = [zero; C];
-            for k in 0..C {
-                let mut v = z[k];
-                if self.colour {
-                    v = zero;
-                    for i in 0..C {
-                        v = _mm256_add_ps(v, _mm256_mul_ps(m[i][k], z[i]));
+        for row in 0..rows {
+            let (p0, c0) = (row * cells, row * stride);
+            let next = c0 + cells;
+            if rows > 1 && next + cells <= valid.len() && (next + cells) * C <= out.len() {
+                // The same cells of the caller's next tile: the rows of a tile are a grid line
+                // apart, more streams than the hardware prefetchers follow, so each run's
+                // validity and output missed.
+                // SAFETY: next + cells ≤ valid.len(), and `out` holds C values per cell of `valid`
+                // (asserted), so the addresses are inside the slices; prefetches never fault.
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(valid.as_ptr().add(next) as *const i8);
+                    let o = out.as_ptr().add(next * C) as *const i8;
+                    let mut b = 0;
+                    while b < cells * C * 4 {
+                        _mm_prefetch::<_MM_HINT_T0>(o.add(b));
+                        b += 64;
                     }
                 }
-                v = if log {
-                    _mm256_max_ps(_mm256_sub_ps(exp_avx2(v), eps[k]), zero)
-                } else {
-                    _mm256_min_ps(_mm256_max_ps(v, zero), max)
-                };
-                y[k] = _mm256_and_ps(v, mask);
             }
+            let mut f0 = 0;
+            while f0 < cells {
+                // SAFETY (every pointer access below): c0 + f0 + g·LANES ≤ span and p0 + f0 +
+                // g·LANES ≤ rows·cells for the g blocks read, and the planes, the validity and
+                // `out` (C values per cell) hold that many (asserted).
+                let g = if f0 + 2 * LANES <= cells { 2 } else { 1 };
+                let mut ok = [0u64; 2];
+                for (i, o) in ok.iter_mut().enumerate().take(g) {
+                    *o = unsafe {
+                        (valid.as_ptr().add(c0 + f0 + i * LANES) as *const u64).read_unaligned()
+                    };
+                }
+                let dst = unsafe { out.as_mut_ptr().add((c0 + f0) * C) };
+                if ok[0] == 0 && ok[1] == 0 {
+                    // Below the horizon (a quarter of a MERL grid): 0 without the exp.
+                    for j in 0..C * g {
+                        unsafe { _mm256_storeu_ps(dst.add(j * LANES), zero) };
+                    }
+                    f0 += g * LANES;
+                    continue;
+                }
+                let src: [*const f32; C] =
+                    std::array::from_fn(|k| planes[k].as_ptr().wrapping_add(p0 + f0));
+                if g == 2 {
+                    unsafe { self.finish_group::<C, 2>(&k, src, ok, dst) };
+                } else {
+                    unsafe { self.finish_group::<C, 1>(&k, src, [ok[0]], dst) };
+                }
+                f0 += g * LANES;
+            }
+        }
+    }
+
+    /// G consecutive blocks of [`Finisher::blocks_avx2`] (`src[k]` their component k values,
+    /// `ok` their validity bytes, `dst` their output), each step for every block and
+    /// component before the next step: an exp is ~25 dependent operations, and one after the
+    /// other they left the blocks latency-bound; side by side in the instruction stream the
+    /// core overlaps them. The same operations per value as [`Finisher::block`], so the same
+    /// bits.
+    ///
+    /// # Safety
+    /// AVX2; `src[k]` readable for G·LANES values, `dst` writable for G·LANES·C.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    unsafe fn finish_group<const C: usize, const G: usize>(
+        &self,
+        k: &BlockConsts<C>,
+        src: [*const f32; C],
+        ok: [u64; G],
+        dst: *mut f32,
+    ) {
+        use std::arch::x86_64::*;
+        let zero = _mm256_setzero_ps();
+        let mut z = [[zero; C]; G];
+        for g in 0..G {
+            for c in 0..C {
+                // SAFETY: the caller's.
+                z[g][c] = unsafe { _mm256_loadu_ps(src[c].add(g * LANES)) };
+            }
+        }
+        let mut v = z;
+        if self.colour {
+            v = [[zero; C]; G];
+            for i in 0..C {
+                for g in 0..G {
+                    for c in 0..C {
+                        v[g][c] = _mm256_add_ps(v[g][c], _mm256_mul_ps(k.m[i][c], z[g][i]));
+                    }
+                }
+            }
+        }
+        if self.eps.is_some() {
+            v = exp_avx2_n(v);
+            for g in 0..G {
+                for c in 0..C {
+                    v[g][c] = _mm256_max_ps(_mm256_sub_ps(v[g][c], k.eps[c]), zero);
+                }
+            }
+        } else {
+            let max = _mm256_set1_ps(f32::MAX);
+            for g in 0..G {
+                for c in 0..C {
+                    v[g][c] = _mm256_min_ps(_mm256_max_ps(v[g][c], zero), max);
+                }
+            }
+        }
+        for g in 0..G {
+            // `bool` is 0 or 1: a lane is valid when its byte is nonzero.
+            let mask = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+                _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(ok[g] as i64)),
+                _mm256_setzero_si256(),
+            ));
+            let mut y = [zero; C];
+            for c in 0..C {
+                y[c] = _mm256_and_ps(v[g][c], mask);
+            }
+            // SAFETY: the caller's.
+            let d = unsafe { dst.add(g * LANES * C) };
             if C == 1 {
-                unsafe { _mm256_storeu_ps(dst, y[0]) };
+                unsafe { _mm256_storeu_ps(d, y[0]) };
             } else {
-                let (r, g, b) = (y[0], y[1 % C], y[2 % C]);
-                let mut o = [zero; 3];
+                // Channel interleave of 3 components: output vector j takes lane l from cell
+                // (8j + l) / 3, channel (8j + l) % 3.
+                let (r, gg, b) = (y[0], y[1 % C], y[2 % C]);
                 for j in 0..3 {
-                    let rp = _mm256_permutevar8x32_ps(r, idx[j]);
-                    let gp = _mm256_permutevar8x32_ps(g, idx[j]);
-                    let bp = _mm256_permutevar8x32_ps(b, idx[j]);
-                    o[j] = match j {
+                    let rp = _mm256_permutevar8x32_ps(r, k.idx[j]);
+                    let gp = _mm256_permutevar8x32_ps(gg, k.idx[j]);
+                    let bp = _mm256_permutevar8x32_ps(b, k.idx[j]);
+                    let o = match j {
                         0 => _mm256_blend_ps::<0x24>(_mm256_blend_ps::<0x92>(rp, gp), bp),
                         1 => _mm256_blend_ps::<0x49>(_mm256_blend_ps::<0x24>(rp, gp), bp),
                         _ => _mm256_blend_ps::<0x92>(_mm256_blend_ps::<0x49>(rp, gp), bp),
                     };
-                }
-                for j in 0..3 {
-                    unsafe { _mm256_storeu_ps(dst.add(j * LANES), o[j]) };
+                    unsafe { _mm256_storeu_ps(d.add(j * LANES), o) };
                 }
             }
-            f0 += LANES;
         }
     }
 
@@ -703,5 +929,65 @@ mod tests {
             x += 0.013;
         }
         assert!(exp_f32(-100.0) > 0.0 && exp_f32(-100.0) < f32::MIN_POSITIVE);
+    }
+
+    /// Runs finished together (`run_rows`, one AVX2 call for whole blocks, the next runs
+    /// prefetched) give the bits of finishing each run on its own, portable or not.
+    #[test]
+    fn rows_finish_as_single_runs() {
+        let mut rng = crate::math::SplitMix64::new(23);
+        for (c, cells, rows, stride) in [(3, 32, 6, 40), (3, 16, 4, 16), (1, 8, 7, 9), (3, 3, 5, 7)]
+        {
+            let fin = if c == 3 {
+                Finisher::with_colour_log(
+                    vec![0.5, 0.3, 0.2, 0.1, -0.4, 0.3, 0.2, 0.1, -0.5],
+                    vec![1e-3, 2e-3, 4e-3],
+                )
+            } else {
+                Finisher::with_colour_log(vec![1.0], vec![1e-3])
+            };
+            let first = 5;
+            let total = first + (rows - 1) * stride + cells + 3;
+            let planes: Vec<Vec<f32>> = (0..c)
+                .map(|_| (0..rows * cells).map(|_| plane_value(&mut rng)).collect())
+                .collect();
+            let valid: Vec<bool> = (0..total)
+                .map(|_| !rng.next_u64().is_multiple_of(5))
+                .collect();
+            for fin in [fin.clone_portable(false), fin.clone_portable(true)] {
+                let mut together = vec![f32::NAN; total * c];
+                let mut alone = together.clone();
+                if c == 3 {
+                    let p: [&[f32]; 3] = std::array::from_fn(|k| planes[k].as_slice());
+                    fin.run_rows::<3>(p, rows, cells, first, stride, &valid, &mut together);
+                } else {
+                    fin.run_rows::<1>(
+                        [planes[0].as_slice()],
+                        rows,
+                        cells,
+                        first,
+                        stride,
+                        &valid,
+                        &mut together,
+                    );
+                }
+                for j in 0..rows {
+                    let f = first + j * stride;
+                    let views: Vec<&[f32]> = planes
+                        .iter()
+                        .map(|p| &p[j * cells..(j + 1) * cells])
+                        .collect();
+                    finish(
+                        &fin,
+                        &views,
+                        &valid[f..f + cells],
+                        &mut alone[f * c..(f + cells) * c],
+                    );
+                }
+                for (i, (a, b)) in together.iter().zip(&alone).enumerate() {
+                    assert_eq!(a.to_bits(), b.to_bits(), "c {c}, cells {cells}, value {i}");
+                }
+            }
+        }
     }
 }
