@@ -296,8 +296,7 @@ pub(crate) fn decode(
 dispatch!(fn expand_contiguous / expand_contiguous_avx2 => contiguous_impl(src: &[f32], dst: &mut [f32], outer: usize, b: &HalfBasis));
 dispatch!(fn expand_strided / expand_strided_avx2 => strided_impl(src: &[f32], dst: &mut [f32], outer: usize, inner: usize, b: &HalfBasis));
 dispatch!(fn expand_slabs_tiled / expand_slabs_tiled_avx2 => slabs_tiled_impl(c: &Coefficients, step: f64, axes: &InnerAxes, tiles: &[(usize, usize)], dst: &mut [f32], bufs: &mut [Vec<f32>; 2], lists: &mut (Vec<usize>, Vec<usize>)));
-dispatch!(fn final_tiled_1 / final_tiled_1_avx2 => final_tiled_c1(inter: &[&[f32]], lists: &[(Vec<usize>, Vec<usize>)], bases: &[HalfBasis], tiles: &[(usize, usize)], fin: &Finisher, valid: &[bool], out: &mut [f32]));
-dispatch!(fn final_tiled_3 / final_tiled_3_avx2 => final_tiled_c3(inter: &[&[f32]], lists: &[(Vec<usize>, Vec<usize>)], bases: &[HalfBasis], tiles: &[(usize, usize)], fin: &Finisher, valid: &[bool], out: &mut [f32]));
+dispatch!(fn final_tiled_n / final_tiled_n_avx2 => final_tiled_c(inter: &[&[f32]], lists: &[(Vec<usize>, Vec<usize>)], bases: &[HalfBasis], tiles: &[(usize, usize)], fin: &Finisher, valid: &[bool], out: &mut [f32]));
 dispatch!(fn final_1 / final_1_avx2 => final_c1(inter: &[&[f32]], bases: &[HalfBasis], outer: usize, inner: usize, fin: &Finisher, valid: &[bool], out: &mut [f32]));
 dispatch!(fn final_3 / final_3_avx2 => final_c3(inter: &[&[f32]], bases: &[HalfBasis], outer: usize, inner: usize, fin: &Finisher, valid: &[bool], out: &mut [f32]));
 
@@ -405,29 +404,22 @@ fn final_pass<const C: usize>(
     }
 }
 
+/// [`final_tiled`] for 1 or 3 components (`inter.len()`), as one function for the dispatch.
 #[inline(always)]
-fn final_tiled_c1(
-    i: &[&[f32]],
-    l: &[(Vec<usize>, Vec<usize>)],
-    b: &[HalfBasis],
-    t: &[(usize, usize)],
-    f: &Finisher,
-    v: &[bool],
+fn final_tiled_c(
+    inter: &[&[f32]],
+    lists: &[(Vec<usize>, Vec<usize>)],
+    bases: &[HalfBasis],
+    tiles: &[(usize, usize)],
+    fin: &Finisher,
+    valid: &[bool],
     out: &mut [f32],
 ) {
-    final_tiled::<1>(i, l, b, t, f, v, out)
-}
-#[inline(always)]
-fn final_tiled_c3(
-    i: &[&[f32]],
-    l: &[(Vec<usize>, Vec<usize>)],
-    b: &[HalfBasis],
-    t: &[(usize, usize)],
-    f: &Finisher,
-    v: &[bool],
-    out: &mut [f32],
-) {
-    final_tiled::<3>(i, l, b, t, f, v, out)
+    if inter.len() == 1 {
+        final_tiled::<1>(inter, lists, bases, tiles, fin, valid, out)
+    } else {
+        final_tiled::<3>(inter, lists, bases, tiles, fin, valid, out)
+    }
 }
 
 /// [`final_pass`] over the tiles stored by [`slabs_tiled_impl`]: `inter[k]` component k's
@@ -551,11 +543,7 @@ fn decode_tiled(
         lists.push(rows);
     }
     let views: Vec<&[f32]> = inter.iter().map(|(a, r)| &a[r.clone()]).collect();
-    if comps.len() == 1 {
-        final_tiled_1(&views, &lists, &bases, &tiles, fin, valid, out);
-    } else {
-        final_tiled_3(&views, &lists, &bases, &tiles, fin, valid, out);
-    }
+    final_tiled_n(&views, &lists, &bases, &tiles, fin, valid, out);
     // In reverse, so that the next decode takes each array back for the same component.
     for (a, _) in inter.into_iter().rev() {
         scratch.give_f32(a);
@@ -1233,14 +1221,7 @@ mod tests {
             let mut rng = crate::math::SplitMix64::new(5);
             let valid: Vec<bool> = (0..cells).map(|_| rng.next_f64() > 0.2).collect();
             for c in [3usize, 1] {
-                let fin = if c == 3 {
-                    Finisher::with_colour_log(
-                        vec![0.5, 0.3, 0.2, 0.1, -0.4, 0.3, 0.2, 0.1, -0.5],
-                        vec![1e-3, 2e-3, 4e-3],
-                    )
-                } else {
-                    Finisher::with_colour_log(vec![1.0], vec![1e-3])
-                };
+                let fin = Finisher::example(c);
                 for orders in [
                     [[2, 1, 0], [1, 2, 0], [2, 1, 0]],
                     [[1, 2, 0], [2, 1, 0], [1, 2, 0]],

@@ -225,11 +225,20 @@ impl Finisher {
         }
     }
 
-    /// A finisher with colour matrix `m` (C × C) and the log curve's `eps`, for tests.
+    /// A finisher of `c` (1 or 3) components with a colour matrix and the log curve, for
+    /// tests.
     #[cfg(test)]
-    pub(crate) fn with_colour_log(m: Vec<f32>, eps: Vec<f32>) -> Finisher {
+    pub(crate) fn example(c: usize) -> Finisher {
+        let (m, eps) = if c == 3 {
+            (
+                vec![0.5, 0.3, 0.2, 0.1, -0.4, 0.3, 0.2, 0.1, -0.5],
+                vec![1e-3, 2e-3, 4e-3],
+            )
+        } else {
+            (vec![1.0], vec![1e-3])
+        };
         Finisher {
-            c: eps.len(),
+            c,
             m,
             eps: Some(eps),
             colour: true,
@@ -938,14 +947,7 @@ mod tests {
         let mut rng = crate::math::SplitMix64::new(23);
         for (c, cells, rows, stride) in [(3, 32, 6, 40), (3, 16, 4, 16), (1, 8, 7, 9), (3, 3, 5, 7)]
         {
-            let fin = if c == 3 {
-                Finisher::with_colour_log(
-                    vec![0.5, 0.3, 0.2, 0.1, -0.4, 0.3, 0.2, 0.1, -0.5],
-                    vec![1e-3, 2e-3, 4e-3],
-                )
-            } else {
-                Finisher::with_colour_log(vec![1.0], vec![1e-3])
-            };
+            let fin = Finisher::example(c);
             let first = 5;
             let total = first + (rows - 1) * stride + cells + 3;
             let planes: Vec<Vec<f32>> = (0..c)
