@@ -494,8 +494,8 @@ impl Finisher {
                 // The same cells of the caller's next tile: the rows of a tile are a grid line
                 // apart, more streams than the hardware prefetchers follow, so each run's
                 // validity and output missed.
-                // SAFETY: next + cells ≤ valid.len(), and `out` holds C values per cell of `valid`
-                // (asserted), so the addresses are inside the slices; prefetches never fault.
+                // SAFETY: next + cells ≤ valid.len() and (next + cells)·C ≤ out.len() (checked
+                // above), so the addresses are inside the slices; prefetches never fault.
                 unsafe {
                     _mm_prefetch::<_MM_HINT_T0>(valid.as_ptr().add(next) as *const i8);
                     let o = out.as_ptr().add(next * C) as *const i8;
