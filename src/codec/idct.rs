@@ -362,6 +362,7 @@ fn final_pass<const C: usize>(
             );
         }
     } else {
+        let tiles = final_tiles(inner);
         let mut blocks = vec![0f32; C * n * WIDE];
         let mut evens: Vec<Vec<usize>> = vec![Vec::new(); C];
         let mut odds: Vec<Vec<usize>> = vec![Vec::new(); C];
@@ -381,24 +382,12 @@ fn final_pass<const C: usize>(
                 fin,
                 valid,
             };
-            let mut x0 = 0;
-            while x0 + WIDE <= inner {
-                t.run::<C, WIDE>(x0, &mut blocks, out);
-                x0 += WIDE;
-            }
-            while x0 + 8 <= inner {
-                t.run::<C, 8>(x0, &mut blocks, out);
-                x0 += 8;
-            }
-            if x0 < inner && inner >= 8 {
-                // Overlapping last tile, as in `strided_impl` (finishing is per cell, so the
-                // overlapped cells are written again with the same values).
-                t.run::<C, 8>(inner - 8, &mut blocks, out);
-                x0 = inner;
-            }
-            while x0 < inner {
-                t.run::<C, 1>(x0, &mut blocks, out);
-                x0 += 1;
+            for &(x0, w) in &tiles {
+                match w {
+                    WIDE => t.run::<C, WIDE>(x0, &mut blocks, out),
+                    8 => t.run::<C, 8>(x0, &mut blocks, out),
+                    _ => t.run::<C, 1>(x0, &mut blocks, out),
+                }
             }
         }
     }
@@ -771,16 +760,11 @@ struct SlabWork {
 
 impl SlabWork {
     #[inline(always)]
-    fn new(
-        c: &Coefficients,
-        first: usize,
-        b1: &HalfBasis,
-        b2: &HalfBasis,
-        tmp: &mut Vec<f32>,
-    ) -> SlabWork {
+    fn new(c: &Coefficients, axes: &InnerAxes, tmp: &mut Vec<f32>) -> SlabWork {
+        let InnerAxes { first, b1, b2 } = axes;
         let (e1, e2) = (c.extent[1], c.extent[2]);
         let hp = b1.hp.max(b2.hp);
-        let tmp_len = if first == 2 { e1 * b2.n } else { b1.n * e2 };
+        let tmp_len = if *first == 2 { e1 * b2.n } else { b1.n * e2 };
         if tmp.len() < tmp_len {
             tmp.resize(tmp_len, 0.0);
         }
@@ -798,19 +782,17 @@ impl SlabWork {
 
     /// Slab k0 of the codes into `plane` (N1 × N2); false, and `plane` all zero, when the
     /// slab holds no nonzero code.
-    #[allow(clippy::too_many_arguments)] // The pass's whole state.
     #[inline(always)]
     fn expand(
         &mut self,
         c: &Coefficients,
         k0: usize,
         step: f64,
-        first: usize,
-        b1: &HalfBasis,
-        b2: &HalfBasis,
+        axes: &InnerAxes,
         tmp: &mut [f32],
         plane: &mut [f32],
     ) -> bool {
+        let InnerAxes { first, b1, b2 } = axes;
         let (codes, extent) = (&c.codes, &c.extent);
         let (e1, e2) = (extent[1], extent[2]);
         let (n1, n2) = (b1.n, b2.n);
@@ -834,7 +816,7 @@ impl SlabWork {
                 odd.push(k1);
             }
         }
-        if first == 2 {
+        if *first == 2 {
             // Along axis 2 (contiguous), the nonempty lines only; then along axis 1 over the
             // rows they became (the others are zero rows, which the strided pass skips).
             for &k1 in even.iter().chain(odd.iter()) {
@@ -871,8 +853,9 @@ impl SlabWork {
     }
 }
 
-/// The tiles of the fused last pass along the inner cells: (x0, width), as
-/// [`final_pass`] visits them.
+/// The tiles of the fused last pass along the inner cells: (x0, width). The last lines are
+/// one 8-wide tile overlapping the previous ones, as in `strided_tiles` (finishing is per
+/// cell, so the overlapped cells are written again with the same values).
 fn final_tiles(inner: usize) -> Vec<(usize, usize)> {
     let mut v = Vec::new();
     let mut x0 = 0;
@@ -927,14 +910,14 @@ fn slabs_tiled_impl(
     bufs: &mut [Vec<f32>; 2],
     lists: &mut (Vec<usize>, Vec<usize>),
 ) {
-    let (b1, b2, first) = (&axes.b1, &axes.b2, axes.first);
     let [tmp, plane] = bufs;
     let (even, odd) = lists;
     let e0 = c.extent[0];
-    let mut w = SlabWork::new(c, first, b1, b2, tmp);
-    DecodeScratch::grow(plane, b1.n * b2.n);
+    let cells = axes.b1.n * axes.b2.n;
+    let mut w = SlabWork::new(c, axes, tmp);
+    DecodeScratch::grow(plane, cells);
     for k0 in 0..e0 {
-        if !w.expand(c, k0, step, first, b1, b2, tmp, &mut plane[..b1.n * b2.n]) {
+        if !w.expand(c, k0, step, axes, tmp, &mut plane[..cells]) {
             continue;
         }
         if k0 % 2 == 0 {
