@@ -262,7 +262,7 @@ pub fn metrics(set: &SampleSet, f: &[f64], g: &[f64], c: usize, channel: Option<
     let mut core_rel = Vec::new();
     for (p, &(wi, wo)) in set.pairs.iter().enumerate() {
         let w = weight(p);
-        let core = wi.z >= 0.1 && wo.z >= 0.1;
+        let core = in_core(wi, wo);
         for &k in &chans {
             let (fv, gv) = (f[p * c + k], g[p * c + k]);
             if !gv.is_finite() {
@@ -273,11 +273,10 @@ pub fn metrics(set: &SampleSet, f: &[f64], g: &[f64], c: usize, channel: Option<
                 m.negative += 1;
             }
             let abs = (gv - fv).abs();
-            let rel = abs / (fv.abs() + eps);
+            let rel = rel_error(fv, gv, eps);
             se += w * abs * abs;
             sre += w * rel * rel;
-            let le = (1.0 + gv * wi.z).max(f64::MIN_POSITIVE).ln()
-                - (1.0 + fv * wi.z).max(f64::MIN_POSITIVE).ln();
+            let le = log_error(fv, gv, wi.z);
             sle += w * le * le;
             sw += w;
             let at = Pair {
@@ -311,8 +310,38 @@ pub fn metrics(set: &SampleSet, f: &[f64], g: &[f64], c: usize, channel: Option<
     m
 }
 
+/// |g − f| / (|f| + ε): the relative error of `rel_rmse`, `max_rel` and `p99_rel_core`.
+#[inline]
+pub fn rel_error(f: f64, g: f64, eps: f64) -> f64 {
+    (g - f).abs() / (f.abs() + eps)
+}
+
+/// ln(1 + g cos θi) − ln(1 + f cos θi): the cosine-weighted log error of `log_rmse`.
+#[inline]
+pub fn log_error(f: f64, g: f64, cos_i: f64) -> f64 {
+    (1.0 + g * cos_i).max(f64::MIN_POSITIVE).ln() - (1.0 + f * cos_i).max(f64::MIN_POSITIVE).ln()
+}
+
+/// The `_core` metrics' region: cos θi ≥ 0.1 and cos θo ≥ 0.1 (where renders look).
+#[inline]
+pub fn in_core(wi: Vec3, wo: Vec3) -> bool {
+    wi.z >= 0.1 && wo.z >= 0.1
+}
+
+/// ε of the relative metrics for reference values `f` (pair-major, all channels pooled,
+/// equal weights): 1e-3 · mean |f| over the finite values, never 0.
+pub fn metric_epsilon(f: &[f64]) -> f64 {
+    let (mut s, mut n) = (0.0, 0usize);
+    for v in f.iter().filter(|v| v.is_finite()) {
+        s += v.abs();
+        n += 1;
+    }
+    let eps = if n > 0 { 1e-3 * s / n as f64 } else { 0.0 };
+    if eps > 0.0 { eps } else { f64::MIN_POSITIVE }
+}
+
 /// The q-quantile by the nearest-rank method (unweighted).
-fn percentile(v: &mut [f64], q: f64) -> f64 {
+pub fn percentile(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
     }

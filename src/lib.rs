@@ -17,7 +17,7 @@ pub mod grid;
 pub mod io;
 pub mod math;
 pub mod model;
-pub mod pack_search;
+pub mod plan;
 pub mod props;
 pub mod source;
 pub mod spectral;

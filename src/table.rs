@@ -1032,6 +1032,46 @@ impl Stencil {
         self.ends.is_empty()
     }
 
+    /// The first cell pair `p` reads (its lowest neighbour; the held cell when every
+    /// neighbour is invalid; `usize::MAX` when it reads none): a sort key that puts pairs
+    /// reading nearby cells next to each other.
+    pub fn first_cell(&self, p: usize) -> usize {
+        let start = if p == 0 { 0 } else { self.ends[p - 1] };
+        match self.after[p] {
+            After::Hold(flat) => flat,
+            _ => self.cells[start..self.ends[p]]
+                .iter()
+                .copied()
+                .min()
+                .unwrap_or(usize::MAX),
+        }
+    }
+
+    /// The stencils of the pairs in `order` (indices into this stencil's pairs): pair k of
+    /// the result is pair `order[k]` of this one.
+    ///
+    /// # Panics
+    /// When an index is out of range (a caller bug).
+    pub fn reordered(&self, order: &[usize]) -> Stencil {
+        let mut out = Stencil {
+            channels: self.channels,
+            cells_in_grid: self.cells_in_grid,
+            ends: Vec::with_capacity(order.len()),
+            cells: Vec::with_capacity(self.cells.len()),
+            weights: Vec::with_capacity(self.weights.len()),
+            after: Vec::with_capacity(order.len()),
+        };
+        for &p in order {
+            let start = if p == 0 { 0 } else { self.ends[p - 1] };
+            let end = self.ends[p];
+            out.cells.extend_from_slice(&self.cells[start..end]);
+            out.weights.extend_from_slice(&self.weights[start..end]);
+            out.ends.push(out.cells.len());
+            out.after.push(self.after[p]);
+        }
+        out
+    }
+
     /// The values of a table with these stencils' grid, validity and channel count holding
     /// `data` (cell-major): `out[p·C + ch]`, bit-identical to [`Table::eval_into`].
     ///

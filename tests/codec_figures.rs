@@ -3,10 +3,10 @@
 //! Each case asserts the targets of issue 5 it is meant to meet and prints its figures.
 
 use brdfpack::check::{SampleSet, check_set};
-use brdfpack::codec::search::{Budget, search};
 use brdfpack::codec::{CodecRequest, CodecSpec, Layout, testdata};
 use brdfpack::grid::parse_grid_spec;
 use brdfpack::io::native;
+use brdfpack::plan::search::{Budget, search};
 use brdfpack::table::{Interp, InterpolatedTable, Table};
 use brdfpack::tabulate::tabulate;
 use std::path::Path;
@@ -215,7 +215,7 @@ fn figures_tiny_alpha_packs_without_inf() {
     }
     let t = testdata::ggx_merl(0.0005);
     let set = SampleSet::uniform(65_536, 1);
-    let ev = brdfpack::codec::search::Evaluator::new(&t, &set).unwrap();
+    let ev = brdfpack::plan::search::Evaluator::new(&t, &set).unwrap();
     for s in [
         "lossless",
         "f16",
@@ -250,7 +250,7 @@ fn figures_tiny_alpha_packs_without_inf() {
 #[test]
 #[ignore]
 fn figures_curves() {
-    use brdfpack::codec::search::Evaluator;
+    use brdfpack::plan::search::Evaluator;
     let mut cases: Vec<(String, Table)> = Vec::new();
     if wanted("ggx-au-0.2", "curves") {
         cases.push(("ggx-au-0.2".into(), testdata::ggx_merl(0.2)));
@@ -333,7 +333,7 @@ fn figures_curves() {
 #[test]
 #[ignore]
 fn figures_weight() {
-    use brdfpack::codec::search::Evaluator;
+    use brdfpack::plan::search::Evaluator;
     let mut cases: Vec<(String, Table)> = Vec::new();
     if wanted("ggx-au-0.2", "weight") {
         cases.push(("ggx-au-0.2".into(), testdata::ggx_merl(0.2)));
@@ -379,8 +379,8 @@ fn figures_weight() {
 #[test]
 #[ignore]
 fn figures_residual() {
-    use brdfpack::codec::search::Evaluator;
     use brdfpack::codec::transform::Transform;
+    use brdfpack::plan::search::Evaluator;
     let mut cases: Vec<(String, Table)> = Vec::new();
     if wanted("ggx-au-0.2", "residual") {
         cases.push(("ggx-au-0.2".into(), testdata::ggx_merl(0.2)));

@@ -42,6 +42,23 @@ pub struct BenchArgs {
     /// Print the speed results as JSON lines on stdout (for scripts/peer-compare.sh).
     #[arg(long)]
     pub json: bool,
+    /// The encoder's acceptance run instead: every zoo material (and every file of the
+    /// shared data folder) packed within the preview and production budgets and measured
+    /// against its source on independent seeds; a Markdown table on stdout (JSON lines with
+    /// --json). Only materials whose name contains FILTER with --zoo-filter.
+    #[arg(long)]
+    pub zoo: bool,
+    #[arg(long, requires = "zoo")]
+    pub zoo_filter: Option<String>,
+    /// Verification seeds per material and budget (--zoo).
+    #[arg(long, default_value_t = 10, requires = "zoo")]
+    pub zoo_seeds: usize,
+    /// Pairs per verification seed (--zoo).
+    #[arg(long, default_value_t = 100_000, requires = "zoo")]
+    pub zoo_pairs: usize,
+    /// Planner effort (--zoo): fast, default or max.
+    #[arg(long, default_value = "default", requires = "zoo")]
+    pub zoo_effort: String,
 }
 
 pub fn run(a: BenchArgs) -> anyhow::Result<i32> {
@@ -59,6 +76,9 @@ pub fn run(a: BenchArgs) -> anyhow::Result<i32> {
 }
 
 fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
+    if a.zoo {
+        return run_zoo(&a);
+    }
     let machine = Machine::detect();
     eprintln!("machine: {}", machine.describe());
     let runs = a.runs.unwrap_or(if a.quick { 3 } else { 7 }).max(1);
@@ -142,4 +162,75 @@ fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
         eprintln!("wrote {}", p.display());
     }
     Ok(0)
+}
+
+/// `bench --zoo`: the encoder's acceptance run (docs/compression.md, "The material zoo").
+fn run_zoo(a: &BenchArgs) -> anyhow::Result<i32> {
+    use crate::plan::budget::Budget;
+    use crate::plan::zoo;
+    let effort = crate::plan::rate::Effort::parse(&a.zoo_effort)?;
+    if a.zoo_seeds == 0 || a.zoo_pairs == 0 || a.zoo_pairs > 10_000_000 {
+        return Err(crate::Error::input("--zoo-seeds and --zoo-pairs must be in 1..=1e7").into());
+    }
+    let mut materials: Vec<(String, String)> = zoo::materials()
+        .into_iter()
+        .map(|m| (m.name, m.spec))
+        .collect();
+    let shared = a
+        .shared
+        .clone()
+        .or_else(|| std::env::var_os("BRDFPACK_SHARED").map(PathBuf::from))
+        .unwrap_or_else(|| PathBuf::from("../shared"));
+    for sub in ["data/merl", "data/rgl"] {
+        if let Ok(rd) = std::fs::read_dir(shared.join(sub)) {
+            let mut files: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
+            files.sort();
+            for f in files {
+                if matches!(
+                    f.extension().and_then(|e| e.to_str()),
+                    Some("binary" | "bsdf")
+                ) {
+                    let name = f
+                        .file_name()
+                        .unwrap_or_default()
+                        .to_string_lossy()
+                        .to_string();
+                    materials.push((name, f.display().to_string()));
+                }
+            }
+        }
+    }
+    if let Some(filter) = &a.zoo_filter {
+        materials.retain(|(n, _)| n.contains(filter.as_str()));
+    }
+    let budgets = [
+        ("preview", Budget::parse("log_rmse=0.01,p99_rel_core=0.2")?),
+        (
+            "production",
+            Budget::parse("log_rmse=0.002,p99_rel_core=0.05")?,
+        ),
+    ];
+    let mut rows = Vec::new();
+    for (name, spec) in &materials {
+        for (bname, budget) in &budgets {
+            let r = zoo::run_one(name, spec, bname, budget, effort, a.zoo_seeds, a.zoo_pairs)?;
+            eprintln!(
+                "zoo: {name} {bname}: {} bytes, {:.2} s, holds {}",
+                r.bytes, r.plan_s, r.holds
+            );
+            if a.json {
+                println!("{}", serde_json::to_string(&r)?);
+            }
+            rows.push(r);
+        }
+    }
+    if !a.json {
+        print!("{}", zoo::to_markdown(&rows));
+        for (bname, _) in &budgets {
+            if let Some(m) = zoo::median_bytes(&rows, bname) {
+                println!("\nmedian {bname} file: {m} bytes");
+            }
+        }
+    }
+    Ok(if rows.iter().all(|r| r.holds) { 0 } else { 1 })
 }

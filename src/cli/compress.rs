@@ -5,9 +5,12 @@ use super::common::{Lookup, SamplingArgs, Source, stderr_is_terminal};
 use crate::Error;
 use crate::check::SampleSet;
 use crate::codec::CodecRequest;
-use crate::codec::search::{Budget, Evaluator, search};
 use crate::grid::parse_grid_spec;
 use crate::io::{atomic, native};
+use crate::plan::budget::Budget;
+use crate::plan::pack::{PackInput, PackSettings, plan};
+use crate::plan::rate::Effort;
+use crate::plan::search::Evaluator;
 use crate::table::Table;
 use crate::tabulate::tabulate;
 use clap::Args;
@@ -41,9 +44,12 @@ pub struct CompressArgs {
     /// Seed of the sample set.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// zstd level of the entropy stage during the search.
+    /// zstd level of the entropy stage (`--codec` chains that use zstd).
     #[arg(long, default_value_t = 19)]
     pub level: i32,
+    /// With `--max-error`: time spent for a smaller file, `fast`, `default` or `max`.
+    #[arg(long, default_value = "default")]
+    pub effort: String,
 }
 
 /// Opens the input as a table; a model or measured source is tabulated on `grid` first.
@@ -74,26 +80,15 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
     if a.samples == 0 {
         return Err(Error::input("--samples must be at least 1").into());
     }
+    let effort = Effort::parse(&a.effort)?;
+    if let Some(b) = &a.max_error {
+        return run_budget(&a, Budget::parse(b)?, effort);
+    }
     let table = read_table(&a.input, a.grid.as_deref(), &a.symmetry)?;
     let set = SampleSet::uniform(a.samples, a.seed);
-    let t0 = std::time::Instant::now();
-    let measured = match (&a.codec, &a.max_error) {
-        (_, Some(b)) => {
-            let budget = Budget::parse(b)?;
-            let r = search(&table, &budget, &set, a.level)?;
-            eprintln!(
-                "searched {} candidates in {:.1} s",
-                r.trials.len(),
-                t0.elapsed().as_secs_f64()
-            );
-            r.best
-        }
-        (c, None) => {
-            let req = CodecRequest::parse(c.as_deref().unwrap_or("lossless"))?;
-            let spec = req.resolve(&table)?;
-            Evaluator::new(&table, &set)?.measure(&spec)?
-        }
-    };
+    let req = CodecRequest::parse(a.codec.as_deref().unwrap_or("lossless"))?;
+    let spec = req.resolve(&table)?;
+    let measured = Evaluator::new(&table, &set)?.measure(&spec)?;
     let bytes = native::to_bytes(&table, &measured.spec)?;
     atomic::write_output(&a.output, &bytes)?;
     let raw = table.data().len() * 4;
@@ -120,22 +115,101 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
         "  log_rmse {:.4e}  p99_rel_core {:.4e}  rel_rmse_core {:.4e}  rmse {:.4e}  max_rel {:.4e}  nonfinite {}  negative {}",
         m.log_rmse, m.p99_rel_core, m.rel_rmse_core, m.rmse, m.max_rel, m.nonfinite, m.negative
     )?;
-    if let Some(h) = &measured.held_out {
+    report(&a, &r)
+}
+
+/// `--max-error`: the smallest file whose error against the input (a table against itself,
+/// a model or measured file against the source) meets the budget ([`crate::plan::pack`]).
+fn run_budget(a: &CompressArgs, budget: Budget, effort: Effort) -> anyhow::Result<i32> {
+    let settings = PackSettings {
+        budget: budget.clone(),
+        effort,
+        check_samples: a.samples,
+        check_seed: a.seed,
+    };
+    let source = a.symmetry.apply(Source::open(&a.input)?);
+    let planned = match source {
+        Source::Table(t) => {
+            if let Some(g) = &a.grid {
+                return Err(Error::input(format!(
+                    "--grid {g}: {} is already a table (use `convert --grid` to re-grid it)",
+                    a.input
+                ))
+                .into());
+            }
+            plan(PackInput::Table(&t), &settings, &|_| {})?
+        }
+        other => {
+            let src = other.into_brdf(Lookup::Linear)?;
+            let grid = parse_grid_spec(a.grid.as_deref().unwrap_or("merl"))?;
+            plan(
+                PackInput::Source {
+                    source: src.as_ref(),
+                    grid: Some(grid),
+                    options: a.symmetry.options(false),
+                },
+                &settings,
+                &|_| {},
+            )?
+        }
+    };
+    let e = &planned.encoded;
+    let bytes = native::to_bytes(&planned.table, &e.spec)?;
+    atomic::write_output(&a.output, &bytes)?;
+    let raw = planned.table.data().len() * 4;
+    let values = |m: &crate::check::Metrics| {
+        budget
+            .bounds
+            .iter()
+            .map(|(k, _)| format!("{k} {}", crate::check::fmt_num(m.get(k))))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    use std::fmt::Write as _;
+    let mut r = String::new();
+    writeln!(r, "output: {}", a.output.display())?;
+    writeln!(r, "codec: {}", e.spec.summary())?;
+    writeln!(r, "preserves: {}", e.spec.preserves())?;
+    writeln!(
+        r,
+        "size: {} bytes file ({} payload), {:.4} bits/stored sample, {:.1}× smaller than raw f32 ({raw} bytes)",
+        bytes.len(),
+        e.payload.len(),
+        8.0 * bytes.len() as f64 / planned.table.data().len() as f64,
+        raw as f64 / bytes.len() as f64
+    )?;
+    writeln!(
+        r,
+        "budget {}: met by the written file against the input ({} decodes, {:.2} s)",
+        budget.describe(),
+        e.trials.len(),
+        planned.encode_s
+    )?;
+    if let Some(c) = &e.estimate.check {
         writeln!(
             r,
-            "held-out set (uniform, {} pairs, seed {}; the search accepts a candidate only when \
-             it meets every bound × {} on seed {} and every bound here):",
+            "  file: {} on the uniform set of {} pairs, seed {}",
+            values(c),
             a.samples,
-            a.seed.wrapping_add(1),
-            crate::codec::search::MARGIN,
             a.seed
         )?;
-        writeln!(
-            r,
-            "  log_rmse {:.4e}  p99_rel_core {:.4e}  rel_rmse_core {:.4e}  rmse {:.4e}  max_rel {:.4e}",
-            h.log_rmse, h.p99_rel_core, h.rel_rmse_core, h.rmse, h.max_rel
-        )?;
     }
+    writeln!(
+        r,
+        "        {} at most on any independent uniform set of {} pairs (3σ upper values from {} pairs)",
+        values(&e.estimate.upper),
+        a.samples,
+        planned.estimate_samples
+    )?;
+    writeln!(
+        r,
+        "  grid alone: {} (the uncompressed table against the input)",
+        values(e.floor.check.as_ref().unwrap_or(&e.floor.metrics))
+    )?;
+    report(a, &r)
+}
+
+fn report(a: &CompressArgs, r: &str) -> anyhow::Result<i32> {
     // With `-o -` the file's bytes are stdout: the report must not follow them there.
     if a.output.as_os_str() == "-" {
         eprint!("{r}");

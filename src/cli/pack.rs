@@ -4,14 +4,15 @@
 use super::check::{Bounds, verdict};
 use super::common::{Lookup, SamplingArgs, Source, stderr_is_terminal};
 use crate::check::{CheckOptions, check, fmt_num};
-use crate::codec::search::{Budget, MARGIN, held_out_set, search};
 use crate::codec::{CodecRequest, CodecSpec};
 use crate::grid::parse_grid_spec;
 use crate::io::{atomic, native};
 use crate::model::Model;
-use crate::pack_search::{
-    GridOutcome, GridTrial, always_searched, default_grid_spec, grid_ladder, search_grids,
-};
+use crate::plan::budget::Budget;
+use crate::plan::estimate::{CONFIDENCE_Z, Estimate};
+use crate::plan::grids::default_grid_spec;
+use crate::plan::pack::{GridAttempt, PackInput, PackSettings, plan};
+use crate::plan::rate::Effort;
 use crate::table::{Interp, InterpolatedTable};
 use crate::tabulate::tabulate;
 use clap::Args;
@@ -20,6 +21,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(Args, Debug)]
+#[command(after_help = "Examples:
+  brdfpack pack -o gold.bpk                      # the built-in material, default budget
+  brdfpack pack 'ward:alpha_x=0.1,alpha_y=0.3' -o ward.bpk --max-error log_rmse=0.01,p99_rel_core=0.2
+  brdfpack pack material.binary -o m.bpk --effort max -v")]
 pub struct PackArgs {
     /// Model spec or table file; default: the built-in material (GGX α = 0.2 gold).
     pub source: Option<String>,
@@ -28,10 +33,12 @@ pub struct PackArgs {
     pub output: PathBuf,
     /// Grid spec (see `tabulate --help`). Default: `merl` for isotropic reciprocal sources,
     /// `spherical3:90x90x180` for isotropic non-reciprocal ones (measured data),
-    /// `halfdiff4:64` for anisotropic ones.
+    /// `halfdiff4:64` for anisotropic ones; a finer grid of the same layout when the default
+    /// grid alone cannot meet the budget.
     #[arg(long)]
     pub grid: Option<String>,
-    /// Pairs in the uniform check set.
+    /// Pairs in the uniform check set; the budget is also guaranteed (at 3σ) for
+    /// independent sets of this size.
     #[arg(long, default_value_t = 65_536)]
     pub samples: usize,
     /// Seed of the check's sample sets.
@@ -40,28 +47,37 @@ pub struct PackArgs {
     #[command(flatten)]
     pub symmetry: SamplingArgs,
     /// Codec of the file (docs/compression.md), e.g. `lossless` (bit-exact) or
-    /// `dct:step=0.05`. Default: the smallest file whose decoded table is within
-    /// `log_rmse=0.002,p99_rel_core=0.05` of the tabulated one (a budget search).
+    /// `dct:step=0.05`. Default: the smallest file within the budget (`--max-error`).
     #[arg(long, conflicts_with = "max_error")]
     pub codec: Option<String>,
-    /// Error budget, e.g. `log_rmse=0.01,p99_rel_core=0.2`: the smallest file meeting it on
-    /// the uniform set is chosen. For a model the error is measured against the model and,
-    /// without `--grid`, the grid resolution is searched too (docs/compression.md); for a
-    /// table or measured file, against the tabulated table.
+    /// Error budget of the written file against the source, e.g.
+    /// `log_rmse=0.01,p99_rel_core=0.2`. Default `log_rmse=0.002,p99_rel_core=0.05`.
     #[arg(long)]
     pub max_error: Option<String>,
+    /// Time spent for a smaller file: `fast`, `default` or `max` (several codec variants and
+    /// grids; tens of seconds).
+    #[arg(long, default_value = "default")]
+    pub effort: String,
     /// One JSON object instead of report lines.
     #[arg(long)]
     pub json: bool,
     /// No report (errors and exceeded bounds still print).
     #[arg(short, long)]
     pub quiet: bool,
+    /// Stage timings on stderr.
+    #[arg(short, long)]
+    pub verbose: bool,
+    /// Also check every grid cell (the `cells` set: the source evaluated at each valid cell;
+    /// about a second on a MERL-sized grid).
+    #[arg(long)]
+    pub full_check: bool,
     #[command(flatten)]
     pub bounds: Bounds,
 }
 
 #[derive(Serialize)]
 struct PackReport {
+    output: String,
     source: String,
     grid: String,
     codec: CodecSpec,
@@ -77,18 +93,14 @@ struct PackReport {
     decode_s: f64,
     check: crate::check::CheckReport,
     bounds_exceeded: Vec<String>,
-    /// `--max-error` against a model: the budget, the search's sets and every grid tried.
+    /// The budget and the file's error against the source (absent with `--codec`).
     #[serde(skip_serializing_if = "Option::is_none")]
     budget: Option<BudgetReport>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    grid_search: Option<Vec<GridTrial>>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    grid_search_s: Option<f64>,
+    timings: Vec<(String, f64)>,
 }
 
-/// The budget `pack` searches with when neither `--codec` nor `--max-error` is given: issue
-/// #5's "production" budget on the codec's own error (the decoded table against the tabulated
-/// one), which the lossless fallback always meets, so a coarse grid never makes it fail.
+/// The budget `pack` plans with when neither `--codec` nor `--max-error` is given: issue
+/// #5's "production" budget, against the source.
 pub const DEFAULT_MAX_ERROR: &str = "log_rmse=0.002,p99_rel_core=0.05";
 
 #[derive(Serialize)]
@@ -96,20 +108,19 @@ struct BudgetReport {
     bounds: Vec<(String, f64)>,
     /// True when the budget is [`DEFAULT_MAX_ERROR`] (no `--codec`, no `--max-error`).
     default: bool,
-    /// What the error is measured against: `model` or `table`.
+    effort: Effort,
+    /// Always `source`: the written file against the source the user named.
     against: &'static str,
-    /// Against the table: the chosen file's metrics on the search's set and on the held-out
-    /// set (against a model they are in `grid_search`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    measured: Option<crate::check::Metrics>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    measured_held_out: Option<crate::check::Metrics>,
-    set: String,
+    /// The file against the source: metrics on the estimation set and their upper values
+    /// for an independent uniform set of `samples` pairs, and the check set's metrics.
+    file: Estimate,
+    /// The uncompressed table against the source (tabulation and interpolation).
+    grid_alone: Estimate,
+    estimate_samples: usize,
+    confidence_z: f64,
     samples: usize,
     seed: u64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    held_out_seed: Option<u64>,
-    margin: f64,
+    grids: Vec<GridAttempt>,
 }
 
 /// The file to write and how it was made.
@@ -119,24 +130,20 @@ struct Packed {
     bytes: Vec<u8>,
     tabulate_s: f64,
     encode_s: f64,
-    grid_search: Option<(Vec<GridTrial>, f64)>,
-    /// A codec search against the table: the chosen file's metrics (search set, held-out).
-    codec_error: Option<(crate::check::Metrics, Option<crate::check::Metrics>)>,
+    budget: Option<BudgetReport>,
+    timings: Vec<(String, f64)>,
 }
 
 pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     a.bounds.validate()?;
     super::check::validate_samples(a.samples)?;
+    let effort = Effort::parse(&a.effort)?;
     let source = match &a.source {
         Some(s) => a.symmetry.apply(Source::open(s)?),
         None => Source::Model(Model::default_material()),
     };
-    let is_model = matches!(source, Source::Model(_));
     let src = source.into_brdf(Lookup::Linear)?;
     let explicit = a.max_error.as_deref().map(Budget::parse).transpose()?;
-    // A model is the truth the file stands for: a budget the user gives bounds the error
-    // against it. The default budget bounds the codec's error alone.
-    let against_model = explicit.is_some() && is_model;
     let default_budget = explicit.is_none() && a.codec.is_none();
     let budget = match explicit {
         Some(b) => Some(b),
@@ -145,80 +152,85 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     };
     let show_progress = stderr_is_terminal() && !a.quiet;
     let tab_opts = a.symmetry.options(show_progress);
-    let spinner = |what: String| {
-        show_progress.then(|| {
-            let b = indicatif::ProgressBar::new_spinner();
-            b.set_message(what);
-            b.enable_steady_tick(std::time::Duration::from_millis(120));
-            b
-        })
-    };
+    let bar = show_progress.then(|| {
+        let b = indicatif::ProgressBar::new_spinner();
+        b.enable_steady_tick(std::time::Duration::from_millis(120));
+        b
+    });
+    let grid = a.grid.as_deref().map(parse_grid_spec).transpose()?;
     let packed = match &budget {
-        Some(budget) if against_model => {
-            let (ladder, always) = match &a.grid {
-                Some(g) => (vec![g.as_str()], 1),
-                None => (grid_ladder(src.as_ref()), always_searched(src.as_ref())),
+        Some(budget) => {
+            let progress = |stage: &str| {
+                if let Some(b) = &bar {
+                    b.set_message(stage.to_string());
+                }
             };
-            let set = crate::check::SampleSet::uniform(a.samples, a.seed);
-            let t0 = Instant::now();
-            let progress = spinner(format!(
-                "searching grids and codecs for {} against the model",
-                budget.describe()
-            ));
-            let found = search_grids(src.as_ref(), &ladder, always, budget, &set, 19, &tab_opts);
-            if let Some(p) = progress {
-                p.finish_and_clear();
+            let planned = plan(
+                PackInput::Source {
+                    source: src.as_ref(),
+                    grid,
+                    options: a.symmetry.options(false),
+                },
+                &PackSettings {
+                    budget: budget.clone(),
+                    effort,
+                    check_samples: a.samples,
+                    check_seed: a.seed,
+                },
+                &progress,
+            );
+            if let Some(b) = &bar {
+                b.finish_and_clear();
             }
-            let found = found?;
-            let total_s = t0.elapsed().as_secs_f64();
+            let planned = planned?;
+            let bytes = native::to_bytes(&planned.table, &planned.encoded.spec)?;
             Packed {
-                table: found.choice.table,
-                codec: found.choice.codec,
-                bytes: found.choice.file,
-                tabulate_s: found.choice.tabulate_s,
-                encode_s: found.choice.search_s,
-                grid_search: Some((found.trials, total_s)),
-                codec_error: None,
+                codec: planned.encoded.spec.clone(),
+                bytes,
+                tabulate_s: planned.tabulate_s,
+                encode_s: planned.encode_s,
+                budget: Some(BudgetReport {
+                    bounds: budget.bounds.clone(),
+                    default: default_budget,
+                    effort,
+                    against: "source",
+                    file: planned.encoded.estimate.clone(),
+                    grid_alone: planned.encoded.floor.clone(),
+                    estimate_samples: planned.estimate_samples,
+                    confidence_z: CONFIDENCE_Z,
+                    samples: a.samples,
+                    seed: a.seed,
+                    grids: planned.attempts,
+                }),
+                timings: planned.timings,
+                table: planned.table,
             }
         }
-        _ => {
-            let grid = match &a.grid {
-                Some(g) => parse_grid_spec(g)?,
-                None => default_grid(src.as_ref()),
-            };
+        None => {
+            if let Some(b) = &bar {
+                b.finish_and_clear();
+            }
+            let grid = grid.unwrap_or_else(|| default_grid(src.as_ref()));
             let t0 = Instant::now();
             let table = tabulate(src.as_ref(), &grid, &tab_opts)?;
             let tabulate_s = t0.elapsed().as_secs_f64();
             let t1 = Instant::now();
-            let (codec, codec_error) = match (&a.codec, &budget) {
-                (_, Some(budget)) => {
-                    let set = crate::check::SampleSet::uniform(a.samples, a.seed);
-                    let progress = spinner(format!(
-                        "searching codecs for {} against the table",
-                        budget.describe()
-                    ));
-                    let found = search(&table, budget, &set, 19);
-                    if let Some(p) = progress {
-                        p.finish_and_clear();
-                    }
-                    let best = found?.best;
-                    (best.spec, Some((best.metrics, best.held_out)))
-                }
-                // Without --codec the default budget is set, so this is `--codec`'s.
-                (c, None) => (
-                    CodecRequest::parse(c.as_deref().unwrap_or("lossless"))?.resolve(&table)?,
-                    None,
-                ),
-            };
+            // Without a budget, --codec is given.
+            let codec =
+                CodecRequest::parse(a.codec.as_deref().unwrap_or("lossless"))?.resolve(&table)?;
             let bytes = native::to_bytes(&table, &codec)?;
+            let encode_s = t1.elapsed().as_secs_f64();
             Packed {
                 table,
                 codec,
                 bytes,
                 tabulate_s,
-                encode_s: t1.elapsed().as_secs_f64(),
-                grid_search: None,
-                codec_error,
+                encode_s,
+                budget: None,
+                timings: vec![
+                    ("tabulate".to_string(), tabulate_s),
+                    ("encode".to_string(), encode_s),
+                ],
             }
         }
     };
@@ -228,14 +240,16 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         bytes,
         tabulate_s,
         encode_s,
-        grid_search,
-        codec_error,
+        budget: budget_report,
+        mut timings,
     } = packed;
     let grid = table.grid().clone();
     // Check what a reader will get: decode the bytes we are about to write.
     let t2 = Instant::now();
     let back = native::from_bytes(&bytes, &a.output)?;
     let decode_s = t2.elapsed().as_secs_f64();
+    timings.push(("read back".to_string(), decode_s));
+    let t3 = Instant::now();
     let cells = (back.grid().clone(), back.valid().to_vec());
     let cand = InterpolatedTable {
         table: back,
@@ -244,29 +258,41 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     let report = check(
         src.as_ref(),
         &cand,
-        Some((&cells.0, &cells.1)),
+        a.full_check.then_some((&cells.0, &cells.1)),
         &CheckOptions {
             samples: a.samples,
             seed: a.seed,
             all_sets: true,
         },
     )?;
-    // The search measured these very bytes on this very set; a mismatch would be a bug, and
-    // a file that misses its budget must never be written.
-    if let (Some(b), true) = (&budget, against_model)
+    timings.push(("check".to_string(), t3.elapsed().as_secs_f64()));
+    // The planner measured these very bytes on this very set (same pairs, same
+    // interpolation): a mismatch would be a bug, and a file that misses its budget must never
+    // be written.
+    if let Some(b) = &budget
         && !b.met_by(&report.uniform.combined)
     {
         return Err(crate::Error::Failure(format!(
-            "--max-error: the packed file misses the budget against the model on the check \
+            "--max-error: the packed file misses the budget against the source on the check \
              ({}); no file written",
             b.exceeded(&report.uniform.combined).join(", ")
         ))
         .into());
     }
-    atomic::write_output(&a.output, &bytes)?;
     let failed = verdict(&report, &a.bounds);
+    if !failed.is_empty() {
+        // A failed bound never replaces a good file.
+        eprintln!(
+            "brdfpack: bounds exceeded: {}; {} not written",
+            failed.join("; "),
+            a.output.display()
+        );
+        return Ok(1);
+    }
+    atomic::write_output(&a.output, &bytes)?;
     let raw = table.data().len() * 4;
     let r = PackReport {
+        output: a.output.display().to_string(),
         source: src.describe(),
         grid: grid.describe(),
         codec,
@@ -281,27 +307,15 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         encode_s,
         decode_s,
         check: report,
-        bounds_exceeded: failed.clone(),
-        budget: budget.map(|b| {
-            let set = crate::check::SampleSet::uniform(0, a.seed);
-            let (measured, measured_held_out) =
-                codec_error.map_or((None, None), |(m, h)| (Some(m), h));
-            BudgetReport {
-                bounds: b.bounds,
-                default: default_budget,
-                against: if against_model { "model" } else { "table" },
-                measured,
-                measured_held_out,
-                set: set.name.clone(),
-                samples: a.samples,
-                seed: a.seed,
-                held_out_seed: held_out_set(&set).and_then(|h| h.seed),
-                margin: MARGIN,
-            }
-        }),
-        grid_search_s: grid_search.as_ref().map(|g| g.1),
-        grid_search: grid_search.map(|g| g.0),
+        bounds_exceeded: failed,
+        budget: budget_report,
+        timings,
     };
+    if a.verbose {
+        for (stage, secs) in &r.timings {
+            eprintln!("brdfpack: {secs:>8.3} s  {stage}");
+        }
+    }
     let to_stderr = a.output.as_os_str() == "-";
     let out = if a.json {
         format!("{}\n", serde_json::to_string(&r)?)
@@ -314,10 +328,8 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         } else {
             out!("{out}");
         }
-    } else if !failed.is_empty() {
-        eprintln!("brdfpack: bounds exceeded: {}", failed.join("; "));
     }
-    Ok(if failed.is_empty() { 0 } else { 1 })
+    Ok(0)
 }
 
 /// A grid that respects the source's symmetries at about MERL's resolution.
@@ -329,6 +341,7 @@ fn human(r: &PackReport) -> String {
     use std::fmt::Write;
     let mut s = String::new();
     let u = &r.check.uniform;
+    let _ = writeln!(s, "output        {}", r.output);
     let _ = writeln!(s, "source        {}", r.source);
     let _ = writeln!(
         s,
@@ -346,84 +359,59 @@ fn human(r: &PackReport) -> String {
         r.tabulate_s, r.encode_s, r.decode_s
     );
     if let Some(b) = &r.budget {
+        let values = |m: &crate::check::Metrics| {
+            b.bounds
+                .iter()
+                .map(|(k, _)| format!("{k} {}", fmt_num(m.get(k))))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         let bounds: Vec<String> = b.bounds.iter().map(|(k, v)| format!("{k} ≤ {v}")).collect();
         let _ = writeln!(
             s,
-            "budget        {}{} against the {} ({} set, {} pairs, seed {}: bounds × {}{})",
+            "budget        {}{}: met by the written file against the source",
             bounds.join(", "),
             if b.default {
                 " (default; --max-error or --codec to change)"
             } else {
                 ""
             },
-            b.against,
-            b.set,
-            b.samples,
-            b.seed,
-            b.margin,
-            b.held_out_seed
-                .map_or(String::new(), |h| format!("; held-out seed {h}: bounds"))
         );
-        if let Some(m) = &b.measured {
-            let values = |m: &crate::check::Metrics| {
-                b.bounds
-                    .iter()
-                    .map(|(k, _)| format!("{k} {}", fmt_num(m.get(k))))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            };
+        if let Some(c) = &b.file.check {
             let _ = writeln!(
                 s,
-                "codec error   {} against the table{}",
-                values(m),
-                b.measured_held_out
-                    .as_ref()
-                    .map_or(String::new(), |h| format!(" (held-out: {})", values(h)))
+                "  file        {} on the check set below (the file against the source: grid + compression)",
+                values(c)
             );
         }
-    }
-    if let (Some(trials), Some(t)) = (&r.grid_search, r.grid_search_s) {
         let _ = writeln!(
             s,
-            "grid search   {} grid(s) in {t:.1} s; error of the uncompressed table, then of the file, against the model:",
-            trials.len()
+            "              {} at most on any independent uniform set of {} pairs ({}σ upper values from {} pairs)",
+            values(&b.file.upper),
+            b.samples,
+            b.confidence_z,
+            b.estimate_samples
         );
-        let names: Vec<&str> = r
-            .budget
-            .as_ref()
-            .map(|b| b.bounds.iter().map(|(k, _)| k.as_str()).collect())
-            .unwrap_or_default();
-        let values = |m: &crate::check::Metrics| {
-            names
-                .iter()
-                .map(|k| format!("{k} {}", fmt_num(m.get(k))))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        for tr in trials {
-            let mark = if tr.chosen { "*" } else { " " };
-            let _ = writeln!(
-                s,
-                "  {mark} {} ({} cells, tabulated in {:.1} s): table {}",
-                tr.grid,
-                tr.cells,
-                tr.tabulate_s,
-                values(&tr.tabulation)
-            );
-            let _ = match &tr.outcome {
-                GridOutcome::Packed {
-                    bytes,
-                    metrics,
-                    search_s,
-                    ..
-                } => writeln!(
+        let _ = writeln!(
+            s,
+            "  grid alone  {} (the uncompressed table against the source: what the grid and its interpolation cost before compression)",
+            values(b.grid_alone.check.as_ref().unwrap_or(&b.grid_alone.metrics))
+        );
+        if b.grids.len() > 1 {
+            for g in &b.grids {
+                let _ = writeln!(
                     s,
-                    "      {bytes} bytes, {} (codec search {search_s:.1} s){}",
-                    values(metrics),
-                    if tr.chosen { "  <- chosen" } else { "" }
-                ),
-                GridOutcome::Skipped { reason } => writeln!(s, "      skipped: {reason}"),
-            };
+                    "  {} grid {} ({} cells): grid alone {}; {}",
+                    if g.chosen { "*" } else { " " },
+                    g.grid,
+                    g.cells,
+                    values(&g.floor.upper),
+                    g.bytes
+                        .map_or("misses the budget by itself".to_string(), |n| format!(
+                            "{n} bytes of payload"
+                        ))
+                );
+            }
         }
     }
     let _ = writeln!(

@@ -29,7 +29,6 @@ pub mod quantize;
 pub mod reference;
 mod request_text;
 pub mod residual;
-pub mod search;
 mod simd;
 #[doc(hidden)]
 pub mod testdata;
@@ -895,10 +894,13 @@ pub fn dct_coefficients_for(
 fn component_planes(table: &Table, transform: &Transform) -> Vec<Vec<f64>> {
     let c = table.channels().len();
     let cells = table.grid().cells();
-    let z = transform.forward_all(table.data(), c, table.grid(), table.valid());
-    (0..c)
-        .map(|k| (0..cells).map(|f| z[f * c + k]).collect())
-        .collect()
+    let mut planes = vec![vec![0.0; cells]; c];
+    transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
+        for (p, &v) in planes.iter_mut().zip(z) {
+            p[f] = v;
+        }
+    });
+    planes
 }
 
 /// How a curve is chosen for a table.
@@ -1443,16 +1445,31 @@ pub fn transform_for(
     colour: bool,
     weight: Option<Weight>,
 ) -> Transform {
+    transform_with_curve(table, curve_for(table, req, weight), colour, weight)
+}
+
+/// Weight and a given curve plus (for several channels, when `colour`) the KLT of the
+/// weighted, curved channels: the planner derives ε itself ([`crate::plan::rate`]).
+pub fn transform_with_curve(
+    table: &Table,
+    curve: Curve,
+    colour: bool,
+    weight: Option<Weight>,
+) -> Transform {
     let c = table.channels().len();
-    let curve = curve_for(table, req, weight);
     let colour = if colour && c > 1 {
         let t = Transform {
             curve: curve.clone(),
             colour: None,
             weight,
         };
-        let z = t.forward_all(table.data(), c, table.grid(), table.valid());
-        let samples: Vec<f64> = valid_values(&z, table.valid(), c).collect();
+        let valid = table.valid();
+        let mut samples = Vec::with_capacity(table.valid_count() * c);
+        t.for_each_cell(table.data(), c, table.grid(), valid, |f, z| {
+            if valid[f] {
+                samples.extend_from_slice(z);
+            }
+        });
         Some(Colour::klt(&samples, c))
     } else {
         None

@@ -349,24 +349,37 @@ impl Transform {
     /// Transformed components of every cell (cell-major, component fastest), in f64; the
     /// weights (when the transform has them) come from `grid` and `valid`.
     pub fn forward_all(&self, data: &[f32], c: usize, grid: &Grid, valid: &[bool]) -> Vec<f64> {
-        let w = self.cell_weights(grid, valid);
         let mut out = vec![0.0; data.len()];
+        self.for_each_cell(data, c, grid, valid, |f, z| {
+            out[f * c..(f + 1) * c].copy_from_slice(z)
+        });
+        out
+    }
+
+    /// The transformed components of every cell in turn, `visit(cell, z)`: what
+    /// [`Transform::forward_all`] stores, without holding every cell at once.
+    pub fn for_each_cell(
+        &self,
+        data: &[f32],
+        c: usize,
+        grid: &Grid,
+        valid: &[bool],
+        mut visit: impl FnMut(usize, &[f64]),
+    ) {
+        let w = self.cell_weights(grid, valid);
         let mut y = vec![0.0; c];
-        for (f, (cell, o)) in data
-            .chunks_exact(c)
-            .zip(out.chunks_exact_mut(c))
-            .enumerate()
-        {
+        let mut o = vec![0.0; c];
+        for (f, cell) in data.chunks_exact(c).enumerate() {
             let wf = w.as_ref().map_or(1.0, |w| w[f]);
             for k in 0..c {
                 y[k] = self.curve.forward(wf * cell[k] as f64, k);
             }
             match &self.colour {
-                Some(col) => col.forward(&y, o),
+                Some(col) => col.forward(&y, &mut o),
                 None => o.copy_from_slice(&y),
             }
+            visit(f, &o);
         }
-        out
     }
 
     /// One cell back from transformed components; `w` is the cell's weight (1 unweighted:

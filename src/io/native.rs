@@ -86,7 +86,8 @@ pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
         valid_cells: table.valid_count(),
         exact: exact.map(|e| ExactDesc::new(&e.scale)),
     };
-    let head = serde_json::to_vec_pretty(&header)
+    // Compact: the header is a third of a preview-budget file; readers take any JSON.
+    let head = serde_json::to_vec(&header)
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
     let data = codec.encode(table)?;
     let mut sections: Vec<([u8; 4], Vec<u8>)> = vec![(*b"HEAD", head), (*b"DATA", data)];

@@ -13,77 +13,18 @@
 //! chain, 2–4× larger than the context-coded DCT at the same error on the MERL-grid tables
 //! measured (docs/compression.md, "Truncated Tucker beside the DCT").
 
-use super::coefcode::{self, ContextCoding, DEFAULT_DEADZONE};
-use super::domain::Domain;
-use super::entropy::Zstd;
-use super::transform::Transform;
-use super::{CodecRequest, CodecSpec, CurveRequest, Layout, dct, dct_coefficients, transform_for};
+pub use super::budget::{Budget, MARGIN};
 use crate::brdf::Brdf;
-use crate::check::{BOUNDABLE, Metrics, SampleSet, evaluate_set, metrics};
+use crate::check::{Metrics, SampleSet, evaluate_set, metrics};
+use crate::codec::coefcode::{self, ContextCoding, DEFAULT_DEADZONE};
+use crate::codec::domain::Domain;
+use crate::codec::entropy::Zstd;
+use crate::codec::transform::Transform;
+use crate::codec::{
+    CodecRequest, CodecSpec, CurveRequest, Layout, dct, dct_coefficients, transform_for,
+};
 use crate::table::{Interp, InterpolatedTable, Stencil, Table};
 use crate::{Error, Result};
-
-/// Upper bounds on metrics of `spec/metrics.md`, all on the same sample set.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Budget {
-    pub bounds: Vec<(String, f64)>,
-}
-
-impl Budget {
-    /// Parses `log_rmse=0.01[,p99_rel_core=0.2,...]`.
-    pub fn parse(s: &str) -> Result<Budget> {
-        let mut bounds = Vec::new();
-        for part in s.split(',').filter(|p| !p.trim().is_empty()) {
-            let (k, v) = part.split_once('=').ok_or_else(|| {
-                Error::input(format!("--max-error {s:?}: {part:?} is not METRIC=VALUE"))
-            })?;
-            let k = k.trim();
-            if !BOUNDABLE.contains(&k) || k == "albedo_err" {
-                return Err(Error::input(format!(
-                    "--max-error: unknown metric {k:?} (expected one of {})",
-                    BOUNDABLE
-                        .iter()
-                        .filter(|n| **n != "albedo_err")
-                        .copied()
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )));
-            }
-            let v: f64 = v
-                .trim()
-                .parse()
-                .ok()
-                .filter(|x: &f64| x.is_finite() && *x >= 0.0)
-                .ok_or_else(|| {
-                    Error::input(format!(
-                        "--max-error: {k} = {v:?} is not a non-negative number"
-                    ))
-                })?;
-            bounds.push((k.to_string(), v));
-        }
-        if bounds.is_empty() {
-            return Err(Error::input(format!("--max-error {s:?}: no bound given")));
-        }
-        Ok(Budget { bounds })
-    }
-
-    /// True when every bound holds.
-    pub fn met_by(&self, m: &Metrics) -> bool {
-        m.nonfinite == 0
-            && self
-                .bounds
-                .iter()
-                .all(|(k, v)| m.get(k).is_some_and(|x| x <= *v))
-    }
-
-    /// How far over budget (max ratio measured/bound; ≤ 1 when met).
-    pub fn excess(&self, m: &Metrics) -> f64 {
-        self.bounds
-            .iter()
-            .map(|(k, v)| m.get(k).unwrap_or(f64::INFINITY) / v.max(f64::MIN_POSITIVE))
-            .fold(0.0, f64::max)
-    }
-}
 
 /// A measured encoding.
 #[derive(Clone, Debug)]
@@ -236,10 +177,6 @@ const BISECTIONS: usize = 10;
 /// local bisection of the step over [s/2, 2s].
 const REFINEMENTS: [(f64, u32); 3] = [(1.0, 0), (0.6, 0), (0.0, 4)];
 const LOCAL_BISECTIONS: usize = 6;
-/// Safety margin: a candidate must meet every bound × this on the search's sample set (and
-/// every bound on the held-out set), so that the choice holds on sample sets it was not tuned
-/// on.
-pub const MARGIN: f64 = 0.98;
 
 /// The held-out set of a search on `set`: a `uniform` set gets the same size with the next
 /// seed; other sets have none.
@@ -261,45 +198,6 @@ fn accepts(budget: &Budget, m: &Measured) -> bool {
 /// every bound on the held-out set (when there is one).
 pub fn accepts_metrics(budget: &Budget, main: &Metrics, held: Option<&Metrics>) -> bool {
     budget.margined().met_by(main) && held.is_none_or(|h| budget.met_by(h))
-}
-
-impl Budget {
-    /// Every bound × [`MARGIN`].
-    pub fn margined(&self) -> Budget {
-        Budget {
-            bounds: self
-                .bounds
-                .iter()
-                .map(|(k, v)| (k.clone(), v * MARGIN))
-                .collect(),
-        }
-    }
-
-    /// The bounds `m` exceeds, as `name value > bound` (and `nonfinite N` when there are
-    /// non-finite values); empty when met.
-    pub fn exceeded(&self, m: &Metrics) -> Vec<String> {
-        let mut out: Vec<String> = self
-            .bounds
-            .iter()
-            .filter_map(|(k, v)| {
-                let x = m.get(k).unwrap_or(f64::INFINITY);
-                (x > *v).then(|| format!("{k} {x:.4e} > {v:.4e}"))
-            })
-            .collect();
-        if m.nonfinite > 0 {
-            out.push(format!("nonfinite {}", m.nonfinite));
-        }
-        out
-    }
-
-    /// `log_rmse ≤ 0.01, p99_rel_core ≤ 0.2`.
-    pub fn describe(&self) -> String {
-        self.bounds
-            .iter()
-            .map(|(k, v)| format!("{k} ≤ {v}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    }
 }
 
 /// The search state: every trial and the smallest accepted encoding so far.
@@ -626,7 +524,7 @@ mod tests {
     #[test]
     fn search_meets_the_budget_and_reports_what_it_measured() {
         let g = parse_grid_spec("halfdiff3:16x16x24").unwrap();
-        let src = super::super::testdata::GgxConductor::new(0.3);
+        let src = crate::codec::testdata::GgxConductor::new(0.3);
         let t = crate::tabulate::tabulate(&src, &g, &Default::default()).unwrap();
         let set = SampleSet::uniform(4096, 1);
         let budget = Budget::parse("log_rmse=0.005,p99_rel_core=0.1").unwrap();

@@ -1,6 +1,6 @@
 //! The grid-and-codec search of `pack --max-error` for an analytic model (issue #5): the
 //! smallest file whose error against the MODEL meets the budget, over a short ladder of grid
-//! resolutions and, per grid, the codec search of [`crate::codec::search`].
+//! resolutions and, per grid, the codec search of [`crate::plan::search`].
 //!
 //! For each grid of the ladder (coarse to fine): tabulate; measure the uncompressed table
 //! against the model on the budget's sample sets (the tabulation + interpolation error, a
@@ -13,11 +13,11 @@
 use crate::brdf::Brdf;
 use crate::check::{Metrics, SampleSet};
 use crate::codec::CodecSpec;
-use crate::codec::search::{
-    Budget, Evaluator, MARGIN, accepts_metrics, held_out_set, search_against,
-};
 use crate::grid::{Grid, parse_grid_spec};
 use crate::io::native;
+use crate::plan::search::{
+    Budget, Evaluator, MARGIN, accepts_metrics, held_out_set, search_against,
+};
 use crate::table::Table;
 use crate::tabulate::{TabulateOptions, tabulate};
 use crate::{Error, Result};
@@ -25,11 +25,16 @@ use serde::Serialize;
 use std::time::Instant;
 
 /// MERL's halfdiff3 layout (sqrt θh, lower edges) at other resolutions.
-const HALFDIFF3_LADDER: [&str; 4] = [
+const HALFDIFF3_LADDER: [&str; 6] = [
     "halfdiff3:45x45x90,warp=sqrt/linear/linear,at=edge",
     "halfdiff3:64x64x128,warp=sqrt/linear/linear,at=edge",
     "merl",
-    "halfdiff3:128x128x256,warp=sqrt/linear/linear,at=edge",
+    // Past MERL's resolution, θh first: a narrow specular peak lives along θh alone (θd and
+    // φd carry the smooth Fresnel and shadowing factors), so doubling θh buys the most
+    // interpolation accuracy per cell.
+    "halfdiff3:180x90x180,warp=sqrt/linear/linear,at=edge",
+    "halfdiff3:360x90x180,warp=sqrt/linear/linear,at=edge",
+    "halfdiff3:360x128x256,warp=sqrt/linear/linear,at=edge",
 ];
 const SPHERICAL3_LADDER: [&str; 4] = [
     "spherical3:45x45x90",

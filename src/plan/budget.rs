@@ -1,0 +1,110 @@
+//! Error budgets: upper bounds on the metrics of `spec/metrics.md`, shared by `check`,
+//! `compress --max-error` and `pack`.
+
+use crate::check::{BOUNDABLE, Metrics};
+use crate::{Error, Result};
+
+/// Safety margin of the exhaustive search ([`super::search`]): a candidate must meet every
+/// bound × this on the search's sample set (and every bound on the held-out set).
+pub const MARGIN: f64 = 0.98;
+
+/// Upper bounds on metrics of `spec/metrics.md`, all on the same sample set.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Budget {
+    pub bounds: Vec<(String, f64)>,
+}
+
+impl Budget {
+    /// Parses `log_rmse=0.01[,p99_rel_core=0.2,...]`.
+    pub fn parse(s: &str) -> Result<Budget> {
+        let mut bounds = Vec::new();
+        for part in s.split(',').filter(|p| !p.trim().is_empty()) {
+            let (k, v) = part.split_once('=').ok_or_else(|| {
+                Error::input(format!("--max-error {s:?}: {part:?} is not METRIC=VALUE"))
+            })?;
+            let k = k.trim();
+            if !BOUNDABLE.contains(&k) || k == "albedo_err" {
+                return Err(Error::input(format!(
+                    "--max-error: unknown metric {k:?} (expected one of {})",
+                    BOUNDABLE
+                        .iter()
+                        .filter(|n| **n != "albedo_err")
+                        .copied()
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )));
+            }
+            let v: f64 = v
+                .trim()
+                .parse()
+                .ok()
+                .filter(|x: &f64| x.is_finite() && *x >= 0.0)
+                .ok_or_else(|| {
+                    Error::input(format!(
+                        "--max-error: {k} = {v:?} is not a non-negative number"
+                    ))
+                })?;
+            bounds.push((k.to_string(), v));
+        }
+        if bounds.is_empty() {
+            return Err(Error::input(format!("--max-error {s:?}: no bound given")));
+        }
+        Ok(Budget { bounds })
+    }
+
+    /// True when every bound holds.
+    pub fn met_by(&self, m: &Metrics) -> bool {
+        m.nonfinite == 0
+            && self
+                .bounds
+                .iter()
+                .all(|(k, v)| m.get(k).is_some_and(|x| x <= *v))
+    }
+
+    /// How far over budget (max ratio measured/bound; ≤ 1 when met).
+    pub fn excess(&self, m: &Metrics) -> f64 {
+        self.bounds
+            .iter()
+            .map(|(k, v)| m.get(k).unwrap_or(f64::INFINITY) / v.max(f64::MIN_POSITIVE))
+            .fold(0.0, f64::max)
+    }
+}
+
+impl Budget {
+    /// Every bound × [`MARGIN`].
+    pub fn margined(&self) -> Budget {
+        Budget {
+            bounds: self
+                .bounds
+                .iter()
+                .map(|(k, v)| (k.clone(), v * MARGIN))
+                .collect(),
+        }
+    }
+
+    /// The bounds `m` exceeds, as `name value > bound` (and `nonfinite N` when there are
+    /// non-finite values); empty when met.
+    pub fn exceeded(&self, m: &Metrics) -> Vec<String> {
+        let mut out: Vec<String> = self
+            .bounds
+            .iter()
+            .filter_map(|(k, v)| {
+                let x = m.get(k).unwrap_or(f64::INFINITY);
+                (x > *v).then(|| format!("{k} {x:.4e} > {v:.4e}"))
+            })
+            .collect();
+        if m.nonfinite > 0 {
+            out.push(format!("nonfinite {}", m.nonfinite));
+        }
+        out
+    }
+
+    /// `log_rmse ≤ 0.01, p99_rel_core ≤ 0.2`.
+    pub fn describe(&self) -> String {
+        self.bounds
+            .iter()
+            .map(|(k, v)| format!("{k} ≤ {v}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}

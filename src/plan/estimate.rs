@@ -1,0 +1,420 @@
+//! The error of a candidate table against its source, as a budget means it: the metrics of
+//! `spec/metrics.md` on independent `uniform` sets the planner has never seen.
+//!
+//! A metric measured on one seeded set is a random variable: on heavy-tailed errors (a few
+//! pairs near a specular peak carry a large share of the squared error) a file that meets
+//! `log_rmse ≤ 0.002` on the set it was tuned on can miss it on the next seed. The estimator
+//! therefore measures every candidate on its own, larger set (drawn from a seed no user set
+//! uses) and states an upper confidence value of each metric for an independent set of
+//! `for_samples` pairs:
+//!
+//! - mean-square metrics (`rmse`, `rel_rmse`, `log_rmse`, `rel_rmse_core`): with s_p the
+//!   pair's squared error averaged over channels, m = mean(s_p) and v its variance over the
+//!   pairs, the bound is √(m + z·√(v·(1/N_ref + 1/N))) — the spread of the mean of an
+//!   independent set of N_ref pairs around the truth, plus our own estimate's spread;
+//! - `p99_rel_core`: the quantile at 0.99 + z·√(0.99·0.01·(1/M_ref + 1/M)) of the core
+//!   relative errors (M, M_ref: core pairs in ours and in a set of N_ref pairs), the
+//!   distribution-free spread of a sample quantile;
+//! - the relative metrics' ε is itself a mean over the set (1e-3 · mean |f|) and, for a
+//!   bright peak over a dark body, varies by ±10% from set to set, scaling the relative error
+//!   of every dark value with it: the upper values of `rel_rmse`, `rel_rmse_core` and
+//!   `p99_rel_core` use a low ε, the 0.5% quantile of ε over 400 bootstrap resamples of
+//!   N_ref pairs from the estimation set;
+//! - `max_abs`, `max_rel`, `nonfinite`, `negative`: the values on the estimation set (a
+//!   maximum has no confidence bound from a sample; a larger set only finds larger ones).
+//!
+//! z = 3 (one-sided, about 0.13% per set and metric for a normal spread).
+
+use crate::brdf::Brdf;
+use crate::check::{
+    Metrics, SampleSet, evaluate_set, in_core, log_error, metric_epsilon, metrics, percentile,
+    rel_error,
+};
+use crate::table::{Interp, Stencil, Table};
+use crate::{Error, Result};
+use rayon::prelude::*;
+
+/// Seed of the estimation set: fixed (files are deterministic) and far from the small seeds
+/// users pass to `--seed`, so that a user's check set is independent of it.
+pub const ESTIMATE_SEED: u64 = 0x6275_6467_6574_0001;
+/// Pairs in the estimation set at the default effort.
+pub const ESTIMATE_PAIRS: usize = 1 << 17;
+/// One-sided confidence multiplier of the upper values.
+pub const CONFIDENCE_Z: f64 = 3.0;
+
+/// A candidate's error: the metrics on the estimation set and their upper confidence values
+/// for an independent set of [`ErrorEstimator::for_samples`] pairs.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Estimate {
+    pub metrics: Metrics,
+    pub upper: Metrics,
+    /// The metrics on the user's check set, when the estimator has one: the very values the
+    /// `check` of the written file reports (same pairs, same interpolation, same bits).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub check: Option<Metrics>,
+}
+
+/// The reference values of a source at a fixed set of pairs, and a table's interpolation
+/// stencils there: measures any data on that table's grid and validity.
+pub struct ErrorEstimator {
+    set: SampleSet,
+    reference: Vec<f64>,
+    stencil: Stencil,
+    check: Option<Scored>,
+    channels: usize,
+    epsilon: f64,
+    /// ε of the relative metrics on a set of `for_samples` pairs with fewer bright pairs than
+    /// usual (see the module doc).
+    epsilon_low: f64,
+    for_samples: usize,
+    z: f64,
+}
+
+/// The estimation set ([`ESTIMATE_SEED`], `n` pairs) with the reference values of `source`.
+/// Independent of any grid: built once and shared by every grid a planner tries.
+pub struct ReferenceSet {
+    pub set: SampleSet,
+    pub values: Vec<f64>,
+    pub channels: usize,
+}
+
+/// A sample set, its reference values and a table's stencils at its pairs.
+struct Scored {
+    set: SampleSet,
+    reference: Vec<f64>,
+    stencil: Stencil,
+}
+
+impl Scored {
+    /// `reference`'s pairs reordered by the first cell they read on `table`, so that
+    /// measuring a candidate walks the table roughly in memory order (the metrics do not
+    /// depend on pair order).
+    fn new(table: &Table, reference: &ReferenceSet) -> Scored {
+        let c = reference.channels;
+        let stencil = table.stencil(&reference.set.pairs, Interp::Linear);
+        let mut order: Vec<usize> = (0..stencil.len()).collect();
+        order.sort_by_key(|&p| (stencil.first_cell(p), p));
+        let pairs = order.iter().map(|&p| reference.set.pairs[p]).collect();
+        let mut values = Vec::with_capacity(reference.values.len());
+        for &p in &order {
+            values.extend_from_slice(&reference.values[p * c..(p + 1) * c]);
+        }
+        Scored {
+            set: SampleSet {
+                name: reference.set.name.clone(),
+                seed: reference.set.seed,
+                pairs,
+                weights: None,
+            },
+            stencil: stencil.reordered(&order),
+            reference: values,
+        }
+    }
+
+    /// The interpolated values of `data` at the pairs.
+    fn values(&self, data: &[f32], c: usize) -> Vec<f64> {
+        let mut g = vec![0.0; self.set.pairs.len() * c];
+        self.stencil.apply(data, &mut g);
+        g
+    }
+}
+
+impl ReferenceSet {
+    /// The estimation set: `n` uniform pairs from [`ESTIMATE_SEED`].
+    pub fn new(source: &dyn Brdf, n: usize) -> ReferenceSet {
+        ReferenceSet::uniform(source, n, ESTIMATE_SEED)
+    }
+
+    /// `n` uniform pairs from `seed` (a user's check set).
+    pub fn uniform(source: &dyn Brdf, n: usize, seed: u64) -> ReferenceSet {
+        let set = SampleSet::uniform(n, seed);
+        let values = evaluate_set(source, &set);
+        ReferenceSet {
+            set,
+            values,
+            channels: source.channels().len(),
+        }
+    }
+
+    /// ε of the relative metrics on this set: 1e-3 · mean |f| (`spec/metrics.md`).
+    pub fn epsilon(&self) -> f64 {
+        metric_epsilon(&self.values)
+    }
+
+    /// A low ε for independent sets of `n` pairs: the 0.5% quantile of 1e-3 · mean |f| over
+    /// 400 bootstrap resamples of `n` pairs of this set (deterministic: a fixed seed).
+    pub fn epsilon_low(&self, n: usize) -> f64 {
+        let c = self.channels.max(1);
+        let per_pair: Vec<f64> = self
+            .values
+            .chunks_exact(c)
+            .map(|v| {
+                v.iter()
+                    .filter(|x| x.is_finite())
+                    .map(|x| x.abs())
+                    .sum::<f64>()
+                    / c as f64
+            })
+            .collect();
+        if per_pair.is_empty() {
+            return self.epsilon();
+        }
+        const RESAMPLES: u64 = 400;
+        let mut means: Vec<f64> = (0..RESAMPLES)
+            .into_par_iter()
+            .map(|r| {
+                let mut rng = crate::math::SplitMix64::new(ESTIMATE_SEED ^ (r + 1) * 0x9E37_79B9);
+                let mut sum = 0.0;
+                for _ in 0..n {
+                    let k = (rng.next_f64() * per_pair.len() as f64) as usize;
+                    sum += per_pair[k.min(per_pair.len() - 1)];
+                }
+                sum / n as f64
+            })
+            .collect();
+        let low = 1e-3 * percentile(&mut means, 0.005);
+        if low > 0.0 {
+            low.min(self.epsilon())
+        } else {
+            self.epsilon()
+        }
+    }
+}
+
+impl ErrorEstimator {
+    /// An estimator of tables on `table`'s grid and validity against the source of
+    /// `reference`, with upper values stated for independent sets of `for_samples` pairs.
+    /// The pairs are reordered by the first cell they read, so that measuring a candidate
+    /// walks the table roughly in memory order (the metrics do not depend on pair order).
+    /// With `check`, every measurement also gives the metrics on that set (the user's check
+    /// set), in [`Estimate::check`].
+    pub fn new(
+        table: &Table,
+        reference: &ReferenceSet,
+        check: Option<&ReferenceSet>,
+        for_samples: usize,
+    ) -> Result<Self> {
+        let c = table.channels().len();
+        for r in std::iter::once(reference).chain(check) {
+            if r.channels != c {
+                return Err(Error::input(format!(
+                    "error estimate: the source has {} channels, the table {c}",
+                    r.channels
+                )));
+            }
+        }
+        let Scored {
+            set,
+            reference: values,
+            stencil,
+        } = Scored::new(table, reference);
+        Ok(ErrorEstimator {
+            set,
+            stencil,
+            reference: values,
+            check: check.map(|r| Scored::new(table, r)),
+            channels: c,
+            epsilon: reference.epsilon(),
+            epsilon_low: reference.epsilon_low(for_samples.max(1)),
+            for_samples: for_samples.max(1),
+            z: CONFIDENCE_Z,
+        })
+    }
+
+    /// Pairs of the estimation set.
+    pub fn samples(&self) -> usize {
+        self.set.pairs.len()
+    }
+
+    /// The size of the independent sets the upper values are stated for.
+    pub fn for_samples(&self) -> usize {
+        self.for_samples
+    }
+
+    /// ε of the relative metrics on the estimation set.
+    pub fn epsilon(&self) -> f64 {
+        self.epsilon
+    }
+
+    /// The reference values (pair-major) and the pairs, in the estimator's order.
+    pub fn reference(&self) -> (&[(crate::geometry::Vec3, crate::geometry::Vec3)], &[f64]) {
+        (&self.set.pairs, &self.reference)
+    }
+
+    /// The error of `data` (cell-major values on the estimator's grid and validity, linearly
+    /// interpolated) against the source.
+    pub fn measure(&self, data: &[f32]) -> Estimate {
+        let c = self.channels;
+        let n = self.set.pairs.len();
+        let mut g = vec![0.0; n * c];
+        self.stencil.apply(data, &mut g);
+        let point = metrics(&self.set, &self.reference, &g, c, None);
+        let eps_low = self.epsilon_low.min(point.epsilon);
+        let check = self.check.as_ref().map(|s| {
+            let g = s.values(data, c);
+            metrics(&s.set, &s.reference, &g, c, None)
+        });
+        // Per pair: squared errors averaged over channels (abs, rel, log) and whether the pair
+        // is in the core; the core relative errors of every channel.
+        struct PairTerms {
+            abs2: f64,
+            rel2: f64,
+            log2: f64,
+            core: bool,
+        }
+        let terms: Vec<PairTerms> = (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|p| {
+                let (wi, wo) = self.set.pairs[p];
+                let (mut abs2, mut rel2, mut log2) = (0.0, 0.0, 0.0);
+                for k in 0..c {
+                    let (f, gv) = (self.reference[p * c + k], g[p * c + k]);
+                    let a = gv - f;
+                    let r = rel_error(f, gv, eps_low);
+                    let l = log_error(f, gv, wi.z);
+                    abs2 += a * a;
+                    rel2 += r * r;
+                    log2 += l * l;
+                }
+                let k = c as f64;
+                PairTerms {
+                    abs2: abs2 / k,
+                    rel2: rel2 / k,
+                    log2: log2 / k,
+                    core: in_core(wi, wo),
+                }
+            })
+            .collect();
+        let spread = |n_own: usize, n_ref: f64| {
+            if n_own < 2 || n_ref <= 0.0 {
+                f64::INFINITY
+            } else {
+                1.0 / n_ref + 1.0 / n_own as f64
+            }
+        };
+        // √(mean + z·√(var·spread)) of one per-pair term over the selected pairs.
+        let upper_rms = |pick: &dyn Fn(&PairTerms) -> Option<f64>, n_ref: f64| {
+            let vals: Vec<f64> = terms.iter().filter_map(pick).collect();
+            if vals.is_empty() {
+                return 0.0;
+            }
+            let m = vals.iter().sum::<f64>() / vals.len() as f64;
+            let var = if vals.len() > 1 {
+                vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (vals.len() - 1) as f64
+            } else {
+                0.0
+            };
+            (m + self.z * (var * spread(vals.len(), n_ref)).sqrt()).sqrt()
+        };
+        let n_ref = self.for_samples as f64;
+        let core_pairs = terms.iter().filter(|t| t.core).count();
+        let core_ref = n_ref * core_pairs as f64 / n.max(1) as f64;
+        let mut upper = point.clone();
+        upper.rmse = upper_rms(&|t| Some(t.abs2), n_ref);
+        upper.rel_rmse = upper_rms(&|t| Some(t.rel2), n_ref);
+        upper.log_rmse = upper_rms(&|t| Some(t.log2), n_ref);
+        upper.rel_rmse_core = upper_rms(&|t| t.core.then_some(t.rel2), core_ref);
+        if core_pairs > 0 {
+            let q = 0.99 + self.z * (0.99 * 0.01 * spread(core_pairs, core_ref)).sqrt();
+            let mut rel: Vec<f64> = Vec::with_capacity(core_pairs * c);
+            for (p, t) in terms.iter().enumerate() {
+                if t.core {
+                    for k in 0..c {
+                        rel.push(rel_error(self.reference[p * c + k], g[p * c + k], eps_low));
+                    }
+                }
+            }
+            upper.p99_rel_core = percentile(&mut rel, q.min(1.0));
+        }
+        // Never below the point value (the bound states "at most").
+        for (u, m) in [
+            (&mut upper.rmse, point.rmse),
+            (&mut upper.rel_rmse, point.rel_rmse),
+            (&mut upper.log_rmse, point.log_rmse),
+            (&mut upper.rel_rmse_core, point.rel_rmse_core),
+            (&mut upper.p99_rel_core, point.p99_rel_core),
+        ] {
+            *u = u.max(m);
+        }
+        Estimate {
+            metrics: point,
+            upper,
+            check,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::parse_grid_spec;
+    use crate::model::Model;
+    use crate::tabulate::tabulate;
+
+    #[test]
+    fn the_upper_value_covers_independent_sets() {
+        // A coarse table of a glossy lobe: heavy-tailed interpolation error. Its error on
+        // 12 independent sets of 4096 pairs must stay below the estimator's upper value for
+        // 4096-pair sets (z = 3: a miss on any of them would be a ~1.5% event per metric).
+        let m = Model::parse("ggx:alpha=0.08,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:24x24x32,warp=sqrt/linear/linear,at=edge").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        let reference = ReferenceSet::new(&m, 1 << 15);
+        let est = ErrorEstimator::new(&t, &reference, None, 4096).unwrap();
+        let e = est.measure(t.data());
+        assert!(e.upper.log_rmse > e.metrics.log_rmse);
+        assert!(e.upper.p99_rel_core >= e.metrics.p99_rel_core);
+        let cand = crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: Interp::Linear,
+        };
+        let mut worst_log: f64 = 0.0;
+        let mut worst_p99: f64 = 0.0;
+        for seed in 1..=12 {
+            let set = SampleSet::uniform(4096, seed);
+            let (f, gv) = crate::check::evaluate_pairs(&m, &cand, &set).unwrap();
+            let mm = metrics(&set, &f, &gv, 3, None);
+            worst_log = worst_log.max(mm.log_rmse);
+            worst_p99 = worst_p99.max(mm.p99_rel_core);
+        }
+        assert!(
+            worst_log <= e.upper.log_rmse,
+            "log_rmse {worst_log} above the upper value {}",
+            e.upper.log_rmse
+        );
+        assert!(
+            worst_p99 <= e.upper.p99_rel_core,
+            "p99_rel_core {worst_p99} above the upper value {}",
+            e.upper.p99_rel_core
+        );
+    }
+
+    #[test]
+    fn reordering_the_pairs_keeps_the_metrics() {
+        let m = Model::parse("lambert:albedo=0.5+ggx:alpha=0.3").unwrap();
+        let g = parse_grid_spec("halfdiff3:16x16x24").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        let reference = ReferenceSet::new(&m, 5000);
+        let check = ReferenceSet::uniform(&m, 3000, 7);
+        let est = ErrorEstimator::new(&t, &reference, Some(&check), 5000).unwrap();
+        let e = est.measure(t.data());
+        let cand_check = crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: Interp::Linear,
+        };
+        let direct_check = crate::check::check_set(&m, &cand_check, &check.set).unwrap();
+        assert_eq!(e.check.as_ref(), Some(&direct_check.combined));
+        let cand = crate::table::InterpolatedTable {
+            table: t,
+            interp: Interp::Linear,
+        };
+        let g = evaluate_set(&cand, &reference.set);
+        let direct = metrics(&reference.set, &reference.values, &g, 3, None);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-30);
+        assert!(close(e.metrics.log_rmse, direct.log_rmse));
+        assert!(close(e.metrics.rmse, direct.rmse));
+        assert_eq!(e.metrics.p99_rel_core, direct.p99_rel_core);
+        assert_eq!(e.metrics.max_abs, direct.max_abs);
+    }
+}

@@ -1,0 +1,315 @@
+//! `pack`'s planning: the grid and the encoding of the smallest file whose error against the
+//! source meets a budget.
+//!
+//! The grid is the one the user fixed, or the source's default grid
+//! ([`super::grids::default_grid_spec`]); when the grid's own error (the uncompressed table
+//! against the source: tabulation and interpolation) already misses the budget, the next finer
+//! grid of the same layout is tried ([`super::grids::grid_ladder`]). At `--effort max` the
+//! coarser grids of the ladder are tried as well and the smallest file wins. On each grid the
+//! rate control of [`super::rate`] picks the codec.
+
+use super::budget::Budget;
+use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
+use super::grids::default_grid_spec;
+use super::rate::{Effort, Encoded, Progress, RateOutcome, encode_within};
+use crate::brdf::Brdf;
+use crate::grid::{Grid, parse_grid_spec};
+use crate::table::Table;
+use crate::tabulate::{TabulateOptions, tabulate};
+use crate::{Error, Result};
+use serde::Serialize;
+use std::time::Instant;
+
+/// What to pack.
+pub enum PackInput<'a> {
+    /// A source to tabulate: on `grid` when given, else on its default grid (finer ones when
+    /// that grid cannot meet the budget).
+    Source {
+        source: &'a dyn Brdf,
+        grid: Option<Grid>,
+        options: TabulateOptions,
+    },
+    /// A table that is its own source (`compress` of a stored table): its grid, and its error
+    /// measured against its own linear interpolation.
+    Table(&'a Table),
+}
+
+/// The planner's settings.
+#[derive(Clone, Debug)]
+pub struct PackSettings {
+    pub budget: Budget,
+    pub effort: Effort,
+    /// The user's check set (`--samples`, `--seed`): the file must also meet the budget there,
+    /// and the upper values are stated for independent sets of this size.
+    pub check_samples: usize,
+    pub check_seed: u64,
+}
+
+/// One grid tried, for the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct GridAttempt {
+    pub grid: String,
+    pub cells: usize,
+    /// The uncompressed table against the source.
+    pub floor: Estimate,
+    /// The file's bytes on this grid (`None`: the grid alone misses the budget).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bytes: Option<usize>,
+    pub tabulate_s: f64,
+    pub encode_s: f64,
+    pub chosen: bool,
+}
+
+/// The chosen table and encoding, and every grid tried.
+pub struct Planned {
+    pub table: Table,
+    pub grid: String,
+    pub encoded: Encoded,
+    pub attempts: Vec<GridAttempt>,
+    /// (stage, seconds) of the whole plan.
+    pub timings: Vec<(String, f64)>,
+    /// Pairs of the estimation set.
+    pub estimate_samples: usize,
+    pub tabulate_s: f64,
+    pub encode_s: f64,
+}
+
+/// At most this many refinements past the starting grid.
+const MAX_REFINEMENTS: usize = 3;
+/// No refined grid beyond this many cells (4× MERL's: ~70 MB of RGB f32, ~140 MB of DCT
+/// coefficients).
+const MAX_REFINED_CELLS: usize = 6_000_000;
+
+/// A grid with its table and estimator, and the table's own error.
+struct Tabulated {
+    spec: String,
+    table: Table,
+    est: ErrorEstimator,
+    floor: Estimate,
+    tabulate_s: f64,
+}
+
+/// Plans the smallest file meeting the budget (module doc). Fails with
+/// [`Error::Failure`] (exit 1) naming the grids' own errors when no grid can meet it.
+pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Result<Planned> {
+    let mut timings = Vec::new();
+    let interpolated;
+    let (source, start, refine): (&dyn Brdf, Option<Grid>, bool) = match &input {
+        PackInput::Table(t) => {
+            interpolated = crate::table::InterpolatedTable {
+                table: (*t).clone(),
+                interp: crate::table::Interp::Linear,
+            };
+            (&interpolated, None, false)
+        }
+        PackInput::Source {
+            source,
+            grid: Some(g),
+            ..
+        } => (*source, Some(g.clone()), false),
+        PackInput::Source {
+            source, grid: None, ..
+        } => (
+            *source,
+            Some(parse_grid_spec(default_grid_spec(*source))?),
+            true,
+        ),
+    };
+    let t = Instant::now();
+    progress("evaluating the source on the estimation and check sets");
+    let pairs = if settings.effort == Effort::Max {
+        2 * ESTIMATE_PAIRS
+    } else {
+        ESTIMATE_PAIRS
+    };
+    let reference = ReferenceSet::new(source, pairs);
+    let check = ReferenceSet::uniform(source, settings.check_samples, settings.check_seed);
+    timings.push(("reference values".to_string(), t.elapsed().as_secs_f64()));
+    let prepare = |grid: Option<&Grid>, timings: &mut Vec<(String, f64)>| -> Result<Tabulated> {
+        let t = Instant::now();
+        let (spec, table) = match (&input, grid) {
+            (PackInput::Source { options, .. }, Some(g)) => {
+                progress(&format!("tabulating on {}", g.describe()));
+                (g.describe(), tabulate(source, g, options)?)
+            }
+            (PackInput::Table(t), _) => (t.grid().describe(), (*t).clone()),
+            (PackInput::Source { .. }, None) => unreachable!("a source always has a grid"),
+        };
+        let tabulate_s = t.elapsed().as_secs_f64();
+        timings.push((format!("tabulate {spec}"), tabulate_s));
+        let t = Instant::now();
+        progress(&format!("interpolation stencils on {spec}"));
+        let est = ErrorEstimator::new(&table, &reference, Some(&check), settings.check_samples)?;
+        let floor = est.measure(table.data());
+        timings.push((
+            format!("stencils and grid error {spec}"),
+            t.elapsed().as_secs_f64(),
+        ));
+        Ok(Tabulated {
+            spec,
+            table,
+            est,
+            floor,
+            tabulate_s,
+        })
+    };
+    let mut attempts: Vec<GridAttempt> = Vec::new();
+    let mut best: Option<(usize, Table, String, Encoded, f64, f64)> = None;
+    let mut current = prepare(start.as_ref(), &mut timings)?;
+    let mut refinements = 0;
+    let mut tight_tried = false;
+    loop {
+        let t = Instant::now();
+        let outcome = encode_within(
+            &current.table,
+            &current.est,
+            &settings.budget,
+            settings.effort,
+            progress,
+        )?;
+        let encode_s = t.elapsed().as_secs_f64();
+        let share = floor_share(&settings.budget, &current.floor);
+        let Tabulated {
+            spec,
+            table,
+            floor,
+            tabulate_s,
+            ..
+        } = current;
+        let met = match outcome {
+            RateOutcome::GridTooCoarse { .. } => {
+                attempts.push(GridAttempt {
+                    grid: spec,
+                    cells: table.grid().cells(),
+                    floor,
+                    bytes: None,
+                    tabulate_s,
+                    encode_s,
+                    chosen: false,
+                });
+                false
+            }
+            RateOutcome::Encoded(e) => {
+                timings.extend(e.timings.iter().cloned());
+                attempts.push(GridAttempt {
+                    grid: spec.clone(),
+                    cells: table.grid().cells(),
+                    floor,
+                    bytes: Some(e.payload.len()),
+                    tabulate_s,
+                    encode_s,
+                    chosen: false,
+                });
+                let k = attempts.len() - 1;
+                let smaller = best
+                    .as_ref()
+                    .is_none_or(|b| e.payload.len() < b.3.payload.len());
+                let had_best = best.is_some();
+                if smaller {
+                    best = Some((k, table.clone(), spec, *e, tabulate_s, encode_s));
+                }
+                // A refinement that did not make a smaller file ends the walk.
+                !had_best || smaller
+            }
+        };
+        // Refine while the grid alone misses the budget, or once more when it leaves the
+        // codec little room (a finer grid then often makes a smaller file); stop when a
+        // refinement did not make a smaller file.
+        let more = match (&best, met) {
+            (None, _) => true,
+            (Some(_), false) => false,
+            (Some(_), true) => {
+                let tight = if settings.effort == Effort::Max {
+                    TIGHT_FLOOR_MAX
+                } else {
+                    TIGHT_FLOOR
+                };
+                share > tight && !tight_tried
+            }
+        };
+        if best.is_some() && met {
+            tight_tried = true;
+        }
+        if !refine || !more || refinements >= MAX_REFINEMENTS {
+            break;
+        }
+        // Which axis to refine is measured, not assumed: every axis doubled in turn, and the
+        // grid whose own error uses the least of the budget is kept (a narrow peak wants θh,
+        // the grazing 1/(cos θi cos θo) growth wants θd, anisotropy wants φ).
+        let base = table.grid().desc();
+        let mut next: Option<(f64, Tabulated)> = None;
+        for a in 0..base.axes.len() {
+            let mut d = base.clone();
+            d.axes[a].n *= 2;
+            let Ok(g) = Grid::from_desc(&d) else { continue };
+            if g.cells() > MAX_REFINED_CELLS {
+                continue;
+            }
+            let cand = prepare(Some(&g), &mut timings)?;
+            let sh = floor_share(&settings.budget, &cand.floor);
+            if next.as_ref().is_none_or(|(b, _)| sh < *b) {
+                next = Some((sh, cand));
+            }
+        }
+        let Some((_, cand)) = next else { break };
+        current = cand;
+        refinements += 1;
+    }
+    let Some((k, table, grid, encoded, tabulate_s, encode_s)) = best else {
+        return Err(Error::Failure(no_grid_message(&settings.budget, &attempts)));
+    };
+    attempts[k].chosen = true;
+    Ok(Planned {
+        table,
+        grid,
+        encoded,
+        attempts,
+        timings,
+        estimate_samples: pairs,
+        tabulate_s,
+        encode_s,
+    })
+}
+
+/// A grid whose own error uses more than this share of a bound gets one finer grid tried.
+const TIGHT_FLOOR: f64 = 0.6;
+/// The same at `--effort max`.
+const TIGHT_FLOOR_MAX: f64 = 0.25;
+
+/// The largest share of a bound the grid's own error uses (upper values).
+fn floor_share(budget: &Budget, floor: &Estimate) -> f64 {
+    budget
+        .bounds
+        .iter()
+        .map(|(k, b)| floor.upper.get(k).unwrap_or(0.0) / b.max(f64::MIN_POSITIVE))
+        .fold(0.0, f64::max)
+}
+
+/// Why no file was written: the budget and each grid's own error.
+fn no_grid_message(budget: &Budget, attempts: &[GridAttempt]) -> String {
+    let per_grid: Vec<String> = attempts
+        .iter()
+        .map(|a| {
+            let vals: Vec<String> = budget
+                .bounds
+                .iter()
+                .map(|(k, _)| {
+                    format!(
+                        "{k} {}",
+                        crate::check::fmt_num(a.floor.upper.get(k).map(|v| {
+                            v.max(a.floor.check.as_ref().and_then(|c| c.get(k)).unwrap_or(0.0))
+                        }))
+                    )
+                })
+                .collect();
+            format!("{}: {}", a.grid, vals.join(", "))
+        })
+        .collect();
+    format!(
+        "the budget {} cannot be met: the grid's own error (the uncompressed table against the \
+         source, before any compression) is already over it ({}); give a finer --grid or a \
+         looser --max-error; no file written",
+        budget.describe(),
+        per_grid.join("; ")
+    )
+}

@@ -1,0 +1,632 @@
+//! Rate control: the largest quantization step whose file meets an error budget against the
+//! source, predicted from the coefficients and confirmed by decoding.
+//!
+//! The codec is the context-coded DCT of the log curve with KLT colour (`dct_context`,
+//! docs/compression.md). Its parameters come from the data and the metric definitions, not
+//! from a list of candidates:
+//!
+//! - **ε of the curve** y = ln(ε + x): the metrics' own ε, 1e-3 · mean |f| over uniform
+//!   directions (`spec/metrics.md`), measured on the estimation set. With that ε an error δ in
+//!   y is a relative error (ε + f)/(f + ε_m)·δ = δ of `p99_rel_core`/`rel_rmse` for every
+//!   value, and values far below ε_m, which no metric sees, cost nothing. (A mean over grid
+//!   cells would not do: the MERL grid's sqrt θh warp crowds cells into the specular peak, so
+//!   the cell mean of a chrome-like material is orders of magnitude above the uniform one.)
+//! - **The step**: the DCT is orthonormal, so the mean squared error a step s leaves in y is
+//!   known before decoding, D(s) = Σ (c − Q_s(c))² / N (Parseval), and is computed in one pass
+//!   over the coefficients. Each bounded metric is modelled as U(s)² = F² + k²·D(s), F the
+//!   grid's own error against the source (the uncompressed table), k the propagation from y to
+//!   the metric. k starts from the white-noise propagation of the metric's definition and is
+//!   re-fitted from each measured candidate; the next step solves D(s) = min over metrics of
+//!   (B² − F²)/k² by bisection on the exact D. Two or three decodes usually settle it.
+//! - Every candidate is encoded, decoded by the reader's code and measured on the estimation
+//!   set ([`super::estimate`]); only a candidate whose upper confidence values meet every bound
+//!   is accepted, and the smallest accepted file wins.
+
+use super::budget::Budget;
+use super::estimate::{ErrorEstimator, Estimate};
+use crate::check::Metrics;
+use crate::codec::coefcode::{self, ContextCoding, DEFAULT_DEADZONE};
+use crate::codec::domain::Domain;
+use crate::codec::transform::{Curve, Transform};
+use crate::codec::{
+    CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_planes,
+    transform_with_curve,
+};
+use crate::table::Table;
+use crate::{Error, Result};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::time::Instant;
+
+/// How much time the planner may spend for a smaller file.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Effort {
+    /// One codec variant, at most 3 decodes.
+    Fast,
+    /// One codec variant (the metric-matched ε, dead zone 0.75), at most 5 decodes.
+    #[default]
+    Default,
+    /// Several ε scales and dead zones and a refined fill, each rate-controlled; a larger
+    /// estimation set.
+    Max,
+}
+
+impl Effort {
+    pub fn parse(s: &str) -> Result<Effort> {
+        match s {
+            "fast" => Ok(Effort::Fast),
+            "default" => Ok(Effort::Default),
+            "max" => Ok(Effort::Max),
+            _ => Err(Error::input(format!(
+                "--effort {s:?}: expected fast, default or max"
+            ))),
+        }
+    }
+
+    /// Decodes per variant.
+    fn iterations(self) -> usize {
+        match self {
+            Effort::Fast => 3,
+            Effort::Default => 5,
+            Effort::Max => 8,
+        }
+    }
+
+    /// The codec variants tried, as (ε scale relative to the metric's ε, dead zone, refined
+    /// fill passes).
+    fn variants(self) -> Vec<Variant> {
+        let v = |eps_scale, deadzone, refine| Variant {
+            eps_scale,
+            deadzone,
+            refine,
+        };
+        match self {
+            Effort::Fast | Effort::Default => vec![v(1.0, DEFAULT_DEADZONE, 0)],
+            Effort::Max => vec![
+                v(1.0, DEFAULT_DEADZONE, 0),
+                v(0.5, DEFAULT_DEADZONE, 0),
+                v(2.0, DEFAULT_DEADZONE, 0),
+                v(1.0, 1.0, 0),
+                v(1.0, 0.6, 0),
+                v(1.0, DEFAULT_DEADZONE, 4),
+            ],
+        }
+    }
+}
+
+/// One codec variant of the rate control.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Variant {
+    eps_scale: f64,
+    deadzone: f64,
+    refine: u32,
+}
+
+impl Variant {
+    fn describe(&self) -> String {
+        format!(
+            "dct context ε×{} deadzone={}{}",
+            self.eps_scale,
+            self.deadzone,
+            if self.refine > 0 {
+                format!(" refine={}", self.refine)
+            } else {
+                String::new()
+            }
+        )
+    }
+}
+
+/// One decoded and measured candidate, for the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct RateTrial {
+    pub variant: String,
+    pub step: f64,
+    pub bytes: usize,
+    /// Predicted mean squared error in the curve's space, D(step).
+    pub predicted_mse: f64,
+    pub estimate: Estimate,
+    pub meets: bool,
+}
+
+/// The rate control's result.
+#[derive(Clone, Debug)]
+pub struct Encoded {
+    pub spec: CodecSpec,
+    pub payload: Vec<u8>,
+    /// The chosen file's error against the source.
+    pub estimate: Estimate,
+    /// The uncompressed table's error against the source (the grid's own).
+    pub floor: Estimate,
+    pub trials: Vec<RateTrial>,
+    /// (stage, seconds).
+    pub timings: Vec<(String, f64)>,
+}
+
+/// What [`encode_within`] found.
+#[derive(Clone, Debug)]
+pub enum RateOutcome {
+    Encoded(Box<Encoded>),
+    /// The uncompressed table itself misses the budget: no codec can meet it on this grid.
+    GridTooCoarse {
+        floor: Estimate,
+    },
+}
+
+/// Called with the name of each stage as it starts.
+pub type Progress<'a> = &'a (dyn Fn(&str) + Sync);
+
+/// The smallest file of `table` whose error against the estimator's source meets `budget`
+/// (upper confidence values, [`super::estimate`]). See the module doc.
+pub fn encode_within(
+    table: &Table,
+    est: &ErrorEstimator,
+    budget: &Budget,
+    effort: Effort,
+    progress: Progress,
+) -> Result<RateOutcome> {
+    let mut timings = Vec::new();
+    let t0 = Instant::now();
+    progress("measuring the grid's own error");
+    let floor = est.measure(table.data());
+    timings.push(("grid error".to_string(), t0.elapsed().as_secs_f64()));
+    if !accepts(budget, &floor) {
+        return Ok(RateOutcome::GridTooCoarse { floor });
+    }
+    let layout = Layout::of(table);
+    let c = table.channels().len();
+    let mut trials = Vec::new();
+    let mut best: Option<(CodecSpec, Vec<u8>, Estimate)> = None;
+    let mut scratch = DecodeScratch::default();
+    let mut decoded = vec![0f32; table.data().len()];
+    let variants = effort.variants();
+    let mut by_scale: Vec<f64> = Vec::new();
+    for v in &variants {
+        if !by_scale.contains(&v.eps_scale) {
+            by_scale.push(v.eps_scale);
+        }
+    }
+    for scale in by_scale {
+        let t = Instant::now();
+        progress("transforming (log curve, colour)");
+        let eps = (scale * est.epsilon()).max(f64::MIN_POSITIVE);
+        let transform = transform_with_curve(table, Curve::Log { eps: vec![eps; c] }, true, None);
+        progress("forward DCT");
+        let dims = table.grid().shape();
+        let coefs: Vec<Vec<f64>> = filled_planes(table, &transform)
+            .into_iter()
+            .map(|p| dct::forward(&p, &dims))
+            .collect();
+        timings.push((
+            format!("transform + DCT (ε×{scale})"),
+            t.elapsed().as_secs_f64(),
+        ));
+        for v in variants.iter().filter(|v| v.eps_scale == scale) {
+            let t = Instant::now();
+            let mut ctl = Control {
+                table,
+                est,
+                budget,
+                floor: &floor,
+                layout: &layout,
+                transform: &transform,
+                coefs: &coefs,
+                variant: *v,
+                scratch: &mut scratch,
+                decoded: &mut decoded,
+                trials: &mut trials,
+                progress,
+            };
+            if let Some((spec, payload, e)) = ctl.run(effort.iterations())?
+                && best.as_ref().is_none_or(|b| payload.len() < b.1.len())
+            {
+                best = Some((spec, payload, e));
+            }
+            timings.push((
+                format!("rate control ({})", v.describe()),
+                t.elapsed().as_secs_f64(),
+            ));
+        }
+    }
+    let (spec, payload, estimate) = match best {
+        Some(b) => b,
+        None => {
+            // Nothing lossy met the budget within the iterations: the lossless chain decodes
+            // to the table itself, whose error (the floor) meets it.
+            progress("lossless fallback");
+            let spec = CodecRequest::Lossless {
+                level: 19,
+                predict: None,
+            }
+            .resolve(table)?;
+            let payload = spec.encode(table)?;
+            (spec, payload, floor.clone())
+        }
+    };
+    Ok(RateOutcome::Encoded(Box::new(Encoded {
+        spec,
+        payload,
+        estimate,
+        floor,
+        trials,
+        timings,
+    })))
+}
+
+/// The state of one variant's rate control.
+struct Control<'a> {
+    table: &'a Table,
+    est: &'a ErrorEstimator,
+    budget: &'a Budget,
+    floor: &'a Estimate,
+    layout: &'a Layout<'a>,
+    transform: &'a Transform,
+    coefs: &'a [Vec<f64>],
+    variant: Variant,
+    scratch: &'a mut DecodeScratch,
+    decoded: &'a mut Vec<f32>,
+    trials: &'a mut Vec<RateTrial>,
+    progress: Progress<'a>,
+}
+
+/// Aim a little inside each bound, so that the first prediction usually lands on an accepted
+/// file (a miss costs a decode); acceptance itself is on the bound.
+const AIM: f64 = 0.97;
+
+impl Control<'_> {
+    /// The rate control of one variant: the smallest accepted candidate, if any.
+    fn run(&mut self, iterations: usize) -> Result<Option<(CodecSpec, Vec<u8>, Estimate)>> {
+        let bounds = &self.budget.bounds;
+        // Each bound's metric as U² = F² + k²·D^γ: k from white noise in y (a first guess),
+        // γ = 1; after two decodes both are fitted to the last two (a secant in log-log).
+        let mut fits: Vec<Fit> = bounds
+            .iter()
+            .map(|(name, _)| Fit {
+                k2: initial_k(name).powi(2),
+                gamma: 1.0,
+                history: Vec::new(),
+            })
+            .collect();
+        let mse_max = mse(self.coefs, f64::INFINITY, self.variant.deadzone);
+        let max_coef = self
+            .coefs
+            .iter()
+            .flat_map(|p| p.iter())
+            .fold(0.0f64, |m, c| m.max(c.abs()));
+        // Steps below this would need more than 2^29 levels for the largest coefficient.
+        let s_min = (max_coef / (1u64 << 29) as f64).max(1e-9);
+        let s_max = (4.0 * max_coef).max(s_min * 2.0);
+        let mut best: Option<(CodecSpec, Vec<u8>, Estimate)> = None;
+        let mut ok_step: Option<f64> = None;
+        let mut fail_step: Option<f64> = None;
+        for _ in 0..iterations {
+            // The largest D that every bound's model allows.
+            let target = bounds
+                .iter()
+                .zip(&fits)
+                .map(|((name, b), fit)| {
+                    let f = self.floor.upper.get(name).unwrap_or(0.0);
+                    let room = (AIM * b).powi(2) - f * f;
+                    if room <= 0.0 {
+                        0.0
+                    } else {
+                        (room / fit.k2).powf(1.0 / fit.gamma)
+                    }
+                })
+                .fold(f64::INFINITY, f64::min);
+            let mut s = if target >= mse_max {
+                s_max
+            } else {
+                step_for_mse(self.coefs, self.variant.deadzone, target, s_min, s_max)
+            };
+            if let Some(f) = fail_step
+                && s >= f * 0.99
+            {
+                // The model has not moved below a step that failed: step down geometrically,
+                // or halfway (in log) to the last accepted one.
+                s = match ok_step {
+                    Some(o) => (o * f).sqrt(),
+                    None => f * 0.7,
+                };
+            }
+            if let Some(o) = ok_step {
+                if s <= o * 1.02 {
+                    break;
+                }
+                if let Some(f) = fail_step
+                    && f / o < 1.04
+                {
+                    break;
+                }
+            }
+            let d = mse(self.coefs, s, self.variant.deadzone);
+            let (spec, payload, e) = self.measure(s)?;
+            let meets = accepts(self.budget, &e);
+            self.trials.push(RateTrial {
+                variant: self.variant.describe(),
+                step: s,
+                bytes: payload.len(),
+                predicted_mse: d,
+                estimate: e.clone(),
+                meets,
+            });
+            // Re-fit each metric's model with this decode.
+            for ((name, _), fit) in bounds.iter().zip(fits.iter_mut()) {
+                let u = e.upper.get(name).unwrap_or(0.0);
+                let f = self.floor.upper.get(name).unwrap_or(0.0);
+                fit.add(d, (u * u - f * f).max(0.0));
+            }
+            // Close enough: the binding bound is used to within 5%.
+            let used = bounds
+                .iter()
+                .map(|(name, b)| e.upper.get(name).unwrap_or(0.0) / b.max(f64::MIN_POSITIVE))
+                .fold(0.0, f64::max);
+            let done = meets && used >= 0.95;
+            if meets {
+                ok_step = Some(ok_step.map_or(s, |o: f64| o.max(s)));
+                if best.as_ref().is_none_or(|b| payload.len() < b.1.len()) {
+                    best = Some((spec, payload, e));
+                }
+            } else {
+                fail_step = Some(fail_step.map_or(s, |f: f64| f.min(s)));
+            }
+            if done {
+                break;
+            }
+        }
+        // Nothing accepted yet: keep halving below the smallest failing step before the
+        // caller falls back to the lossless chain.
+        let mut s = fail_step.unwrap_or(s_max);
+        for _ in 0..10 {
+            if best.is_some() {
+                break;
+            }
+            s *= 0.5;
+            if s < s_min {
+                break;
+            }
+            let d = mse(self.coefs, s, self.variant.deadzone);
+            let (spec, payload, e) = self.measure(s)?;
+            let meets = accepts(self.budget, &e);
+            self.trials.push(RateTrial {
+                variant: self.variant.describe(),
+                step: s,
+                bytes: payload.len(),
+                predicted_mse: d,
+                estimate: e.clone(),
+                meets,
+            });
+            if meets {
+                best = Some((spec, payload, e));
+            }
+        }
+        Ok(best)
+    }
+
+    /// Encodes at step `s`, decodes as a reader would and measures against the source.
+    fn measure(&mut self, s: f64) -> Result<(CodecSpec, Vec<u8>, Estimate)> {
+        let c = self.table.channels().len();
+        let dims = self.table.grid().shape();
+        let v = self.variant;
+        (self.progress)(&format!("trying step {s:.4e} ({})", v.describe()));
+        let spec = CodecSpec::DctContext {
+            domain: if v.refine > 0 {
+                Domain::FillRefined {
+                    iterations: v.refine,
+                }
+            } else {
+                Domain::FillInvalid
+            },
+            transform: self.transform.clone(),
+            dct: dct::DctStage { step: vec![s; c] },
+            coding: ContextCoding::new(v.deadzone),
+            residual: None,
+        };
+        let payload = if v.refine > 0 {
+            let coding = ContextCoding::new(v.deadzone);
+            let coefs = dct_coefficients_for(
+                self.table,
+                self.transform,
+                Domain::FillRefined {
+                    iterations: v.refine,
+                },
+                &vec![s; c],
+                &coding,
+            )?;
+            coefcode::encode(&coefcode::quantize_all(
+                &coefs,
+                &dims,
+                &vec![s; c],
+                v.deadzone,
+            ))
+        } else {
+            coefcode::encode(&coefcode::quantize_all(
+                self.coefs,
+                &dims,
+                &vec![s; c],
+                v.deadzone,
+            ))
+        };
+        spec.decode_into_with(&payload, self.layout, self.decoded, self.scratch)?;
+        if self.decoded.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Failure(format!(
+                "rate control: step {s:e} decoded to a non-finite value"
+            )));
+        }
+        let e = self.est.measure(self.decoded);
+        Ok((spec, payload, e))
+    }
+}
+
+/// The acceptance rule: every bound on the upper values and, when the estimator has the
+/// user's check set, on its metrics too (so that the report's check agrees with the budget).
+pub fn accepts(budget: &Budget, e: &Estimate) -> bool {
+    budget.met_by(&e.upper) && e.check.as_ref().is_none_or(|c| budget.met_by(c))
+}
+
+/// One metric's model U² − F² = k²·D^γ and the decodes it was fitted to.
+struct Fit {
+    k2: f64,
+    gamma: f64,
+    /// (D, U² − F²) of each decode.
+    history: Vec<(f64, f64)>,
+}
+
+impl Fit {
+    fn add(&mut self, d: f64, excess2: f64) {
+        if !(d > 0.0 && excess2 > 0.0 && d.is_finite() && excess2.is_finite()) {
+            return;
+        }
+        self.history.push((d, excess2));
+        let n = self.history.len();
+        if n >= 2 {
+            let (d1, e1) = self.history[n - 2];
+            let (d2, e2) = self.history[n - 1];
+            let span = (d2 / d1).ln();
+            if span.abs() > 1e-3 {
+                self.gamma = ((e2 / e1).ln() / span).clamp(0.3, 1.5);
+            }
+        }
+        self.k2 = excess2 / d.powf(self.gamma);
+    }
+}
+
+/// A first guess of how an RMS error σ in the curve's space shows in a metric: about σ for
+/// the relative metrics (the curve's ε is theirs), 2.6σ for a 99th percentile of a normal
+/// spread, less for `log_rmse` (its cos θi·f/(1 + cos θi·f) weight is below 1), more for
+/// maxima. Only the first step depends on it.
+fn initial_k(metric: &str) -> f64 {
+    match metric {
+        "p99_rel_core" => 2.6,
+        "max_rel" | "max_abs" => 10.0,
+        "log_rmse" => 0.1,
+        _ => 1.0,
+    }
+}
+
+/// D(s): the mean squared error the dead-zone quantizer of step `s` leaves in the
+/// coefficients, which (orthonormal DCT) is that of the curve-space planes over all cells.
+/// Deterministic: fixed chunks summed in order.
+fn mse(coefs: &[Vec<f64>], s: f64, deadzone: f64) -> f64 {
+    const CHUNK: usize = 1 << 15;
+    let threshold = deadzone.max(0.5) * s;
+    let mut total = 0.0;
+    let mut n = 0usize;
+    for plane in coefs {
+        let parts: Vec<f64> = plane
+            .par_chunks(CHUNK)
+            .map(|ch| {
+                let mut acc = 0.0;
+                for &c in ch {
+                    let e = if c.abs() < threshold || !s.is_finite() {
+                        c
+                    } else {
+                        c - (c / s).round() * s
+                    };
+                    acc += e * e;
+                }
+                acc
+            })
+            .collect();
+        total += parts.iter().sum::<f64>();
+        n += plane.len();
+    }
+    total / n.max(1) as f64
+}
+
+/// The largest step in [lo, hi] with D(step) ≤ `target` (bisection in log step; D grows with
+/// the step up to quantization's ripples, which 30 halvings resolve well below 1%).
+fn step_for_mse(coefs: &[Vec<f64>], deadzone: f64, target: f64, lo: f64, hi: f64) -> f64 {
+    let (mut lo, mut hi) = (lo.ln(), hi.ln());
+    if mse(coefs, lo.exp(), deadzone) > target {
+        return lo.exp();
+    }
+    for _ in 0..30 {
+        let mid = 0.5 * (lo + hi);
+        if mse(coefs, mid.exp(), deadzone) <= target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo < 1e-3 {
+            break;
+        }
+    }
+    lo.exp()
+}
+
+/// The metric values of `m` named by `budget`, as `name value` pairs.
+pub fn bounded_values(budget: &Budget, m: &Metrics) -> Vec<(String, f64)> {
+    budget
+        .bounds
+        .iter()
+        .map(|(k, _)| (k.clone(), m.get(k).unwrap_or(f64::NAN)))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::parse_grid_spec;
+    use crate::model::Model;
+    use crate::plan::estimate::ReferenceSet;
+    use crate::tabulate::tabulate;
+
+    #[test]
+    fn the_predicted_mse_is_the_decoded_mse() {
+        // Parseval: D(s) from the coefficients equals the mean squared error of the decoded
+        // planes in the curve's space over all cells (the fill included).
+        let m = Model::parse("ggx:alpha=0.25,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:12x10x16").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        let tr = transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
+        let dims = g.shape();
+        let planes = filled_planes(&t, &tr);
+        let coefs: Vec<Vec<f64>> = planes.iter().map(|p| dct::forward(p, &dims)).collect();
+        for s in [0.01, 0.1, 0.7] {
+            let d = mse(&coefs, s, 0.75);
+            let mut direct = 0.0;
+            for (p, c) in planes.iter().zip(&coefs) {
+                let q = coefcode::quantize_deadzone(c, &dims, s, 0.75);
+                let back = dct::inverse(&q, &dims, s);
+                direct += p
+                    .iter()
+                    .zip(&back)
+                    .map(|(a, b)| (a - *b as f64).powi(2))
+                    .sum::<f64>();
+            }
+            direct /= (planes.len() * planes[0].len()) as f64;
+            assert!(
+                (d - direct).abs() <= 1e-3 * direct + 1e-12,
+                "step {s}: predicted {d}, decoded {direct}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_budget_is_met_against_the_source_and_a_coarse_grid_is_refused() {
+        let m = Model::parse("lambert:albedo=0.02+ggx:alpha=0.15,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:32x32x48,warp=sqrt/linear/linear,at=edge").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        let reference = ReferenceSet::new(&m, 1 << 15);
+        let est = ErrorEstimator::new(&t, &reference, None, 1 << 14).unwrap();
+        let loose = Budget::parse("log_rmse=0.02,p99_rel_core=0.3").unwrap();
+        let RateOutcome::Encoded(e) =
+            encode_within(&t, &est, &loose, Effort::Default, &|_| {}).unwrap()
+        else {
+            panic!("a loose budget on a fine-enough grid must encode");
+        };
+        assert!(loose.met_by(&e.estimate.upper));
+        assert!(!e.spec.is_lossless());
+        // The file decodes to what was measured.
+        let back = e.spec.decode(&e.payload, &Layout::of(&t)).unwrap();
+        assert_eq!(est.measure(&back), e.estimate);
+        // A budget far below the grid's own error is refused with that error.
+        let tight = Budget::parse("log_rmse=1e-7").unwrap();
+        match encode_within(&t, &est, &tight, Effort::Fast, &|_| {}).unwrap() {
+            RateOutcome::GridTooCoarse { floor } => assert!(floor.upper.log_rmse > 1e-7),
+            RateOutcome::Encoded(_) => panic!("a budget below the grid's error was met"),
+        }
+    }
+}
