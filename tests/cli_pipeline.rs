@@ -133,7 +133,17 @@ fn compress_to_stdout_writes_only_the_file() {
 fn pack_default_material_reports_every_metric() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("p.bpk");
-    let pack = ["pack", "--grid", "halfdiff3:32x32x64", "--samples", "4096"];
+    // The default budget (log_rmse ≤ 0.002) is below this coarse grid's own error, so the
+    // test names a budget the grid can meet; the default budget's refusal is in codec_cli.
+    let pack = [
+        "pack",
+        "--grid",
+        "halfdiff3:32x32x64",
+        "--samples",
+        "4096",
+        "--max-error",
+        "log_rmse=0.02,p99_rel_core=0.1",
+    ];
     let o = brdfpack()
         .args(pack)
         .args(["--json", "-o"])
@@ -161,17 +171,30 @@ fn pack_default_material_reports_every_metric() {
         assert!(x.is_finite() && x >= 0.0, "{m} = {x}");
     }
     assert_eq!(v["check"]["uniform"]["combined"]["nonfinite"], 0);
-    // Without --codec or --max-error the file is the budget search's choice for the default
-    // budget on the codec's own error, and the report says so.
+    // The budget is the written file against the model: met on the check set, and by the
+    // 3σ upper values that stand for any independent set of the same size; the grid's own
+    // error is reported apart and is below the file's.
     let b = &v["budget"];
-    assert_eq!(b["default"], true);
-    assert_eq!(b["against"], "table");
+    assert_eq!(b["default"], false);
+    assert_eq!(b["against"], "source");
+    assert_eq!(v["bounds_exceeded"].as_array().unwrap().len(), 0);
     assert_ne!(v["codec"]["kind"], "lossless", "{}", v["codec"]);
-    for (k, bound) in [("log_rmse", 0.002), ("p99_rel_core", 0.05)] {
-        let x = b["measured"][k].as_f64().unwrap();
-        assert!(x <= bound * 0.98, "{k} = {x} on the search set");
-        let h = b["measured_held_out"][k].as_f64().unwrap();
-        assert!(h <= bound, "{k} = {h} on the held-out set");
+    for (k, bound) in [("log_rmse", 0.02), ("p99_rel_core", 0.1)] {
+        let checked = b["file"]["check"][k].as_f64().unwrap();
+        let reported = v["check"]["uniform"]["combined"][k].as_f64().unwrap();
+        // The same pairs in another order: equal up to the summation's rounding.
+        assert!(
+            (checked - reported).abs() <= 1e-12 * reported,
+            "{k}: {checked} vs {reported}"
+        );
+        assert!(checked <= bound, "{k} = {checked} on the check set");
+        let upper = b["file"]["upper"][k].as_f64().unwrap();
+        assert!(upper <= bound, "{k} = {upper} (upper value)");
+        let floor = b["grid_alone"]["metrics"][k].as_f64().unwrap();
+        assert!(
+            floor <= b["file"]["metrics"][k].as_f64().unwrap() * 1.001,
+            "{k}: grid {floor}"
+        );
     }
     let raw = v["raw_f32_bytes"].as_u64().unwrap();
     assert!(

@@ -40,13 +40,17 @@ fn compress_with_a_budget_writes_a_file_that_meets_it() {
     let stdout = String::from_utf8(a.get_output().stdout.clone()).unwrap();
     assert!(stdout.contains("\"kind\":\"dct_context\""), "{stdout}");
     assert!(
-        stdout.contains("held-out set (uniform, 4096 pairs, seed 2"),
+        stdout.contains("met by the written file against the input"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("on the uniform set of 4096 pairs, seed 1"),
         "{stdout}"
     );
     let log_rmse: f64 = stdout
-        .split("log_rmse ")
+        .split("file: log_rmse ")
         .nth(1)
-        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.split([',', ' ']).next())
         .and_then(|s| s.parse().ok())
         .unwrap();
     assert!(log_rmse <= 0.01, "{stdout}");
@@ -123,25 +127,25 @@ fn pack_a_model_with_a_budget_reports_the_grid_search() {
         .stdout
         .clone();
     let v: serde_json::Value = serde_json::from_slice(&o).unwrap();
-    let gs = v["grid_search"].as_array().unwrap();
+    let b = &v["budget"];
+    let gs = b["grids"].as_array().unwrap();
+    // A grid the user fixed is never refined.
     assert_eq!(gs.len(), 1, "{v}");
-    assert_eq!(gs[0]["status"], "packed");
     assert_eq!(gs[0]["chosen"], true);
-    assert_eq!(gs[0]["bytes"], v["bytes"]);
-    assert_eq!(v["budget"]["against"], "model");
-    // The search's measurement is the check's: same bytes, same set, same model.
+    assert_eq!(gs[0]["grid"], v["grid"]);
+    assert!(gs[0]["payload_bytes"].as_u64().unwrap() < v["bytes"].as_u64().unwrap());
+    assert_eq!(b["against"], "source");
+    // The planner's check-set measurement is the report's check: same file, same pairs.
     for k in ["log_rmse", "p99_rel_core"] {
-        assert_eq!(
-            gs[0]["metrics"][k], v["check"]["uniform"]["combined"][k],
-            "{k}"
+        let planned = b["file"]["check"][k].as_f64().unwrap();
+        let checked = v["check"]["uniform"]["combined"][k].as_f64().unwrap();
+        assert!(
+            (planned - checked).abs() <= 1e-12 * checked,
+            "{k}: {planned} vs {checked}"
         );
     }
-    assert!(
-        v["check"]["uniform"]["combined"]["log_rmse"]
-            .as_f64()
-            .unwrap()
-            <= 0.01 * 0.98
-    );
+    assert!(b["file"]["upper"]["log_rmse"].as_f64().unwrap() <= 0.01);
+    assert!(b["file"]["upper"]["p99_rel_core"].as_f64().unwrap() <= 0.2);
     assert_eq!(
         std::fs::read(&out).unwrap().len() as u64,
         v["bytes"].as_u64().unwrap()
@@ -161,10 +165,11 @@ fn pack_with_an_unmeetable_budget_exits_1_and_writes_nothing() {
         .code(1)
         .stdout("")
         .stderr(
-            predicates::str::contains("no grid meets log_rmse ≤ 0.00001 against the model")
-                .and(predicates::str::contains("best reached: log_rmse "))
+            predicates::str::contains("the budget log_rmse ≤ 0.00001 cannot be met")
+                .and(predicates::str::contains("the grid's own error"))
+                // The default grid and the refinements tried, each with its own error.
                 .and(predicates::str::contains(
-                    "halfdiff3:128x128x256,warp=sqrt/linear/linear,at=edge",
+                    "halfdiff3 90x90x180 (warp sqrt/linear/linear; at edge/edge/edge): log_rmse ",
                 ))
                 .and(predicates::str::contains("no file written")),
         );

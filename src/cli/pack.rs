@@ -406,7 +406,7 @@ fn human(r: &PackReport) -> String {
                     g.grid,
                     g.cells,
                     values(&g.floor.upper),
-                    g.bytes
+                    g.payload_bytes
                         .map_or("misses the budget by itself".to_string(), |n| format!(
                             "{n} bytes of payload"
                         ))

@@ -301,7 +301,7 @@ mod tests {
         for m in ["ggx:alpha=0.2", "ward:alpha_x=0.1,alpha_y=0.3", "lambert"] {
             let model = Model::parse(m).unwrap();
             let ladder = grid_ladder(&model);
-            assert!(ladder.len() <= 4);
+            assert!(ladder.len() <= 6);
             let default = parse_grid_spec(default_grid_spec(&model)).unwrap();
             let grids: Vec<Grid> = ladder.iter().map(|s| parse_grid_spec(s).unwrap()).collect();
             assert!(grids.contains(&default), "{m}: {ladder:?}");

@@ -2,11 +2,12 @@
 //! source meets a budget.
 //!
 //! The grid is the one the user fixed, or the source's default grid
-//! ([`super::grids::default_grid_spec`]); when the grid's own error (the uncompressed table
-//! against the source: tabulation and interpolation) already misses the budget, the next finer
-//! grid of the same layout is tried ([`super::grids::grid_ladder`]). At `--effort max` the
-//! coarser grids of the ladder are tried as well and the smallest file wins. On each grid the
-//! rate control of [`super::rate`] picks the codec.
+//! ([`super::grids::default_grid_spec`]). When the user did not fix it and the grid's own
+//! error (the uncompressed table against the source: tabulation and interpolation) misses the
+//! budget, or leaves the codec little of it, a finer grid is tried: every axis doubled in
+//! turn, keeping the grid whose own error uses the least of the budget (measured, so a narrow
+//! peak gets θh, grazing growth θd, anisotropy φ). The walk stops when a refinement does not
+//! make a smaller file. On each grid the rate control of [`super::rate`] picks the codec.
 
 use super::budget::Budget;
 use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
@@ -52,9 +53,10 @@ pub struct GridAttempt {
     pub cells: usize,
     /// The uncompressed table against the source.
     pub floor: Estimate,
-    /// The file's bytes on this grid (`None`: the grid alone misses the budget).
+    /// The encoded payload's bytes on this grid, without the file's header (`None`: the grid
+    /// alone misses the budget).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub bytes: Option<usize>,
+    pub payload_bytes: Option<usize>,
     pub tabulate_s: f64,
     pub encode_s: f64,
     pub chosen: bool,
@@ -182,7 +184,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                     grid: spec,
                     cells: table.grid().cells(),
                     floor,
-                    bytes: None,
+                    payload_bytes: None,
                     tabulate_s,
                     encode_s,
                     chosen: false,
@@ -195,7 +197,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                     grid: spec.clone(),
                     cells: table.grid().cells(),
                     floor,
-                    bytes: Some(e.payload.len()),
+                    payload_bytes: Some(e.payload.len()),
                     tabulate_s,
                     encode_s,
                     chosen: false,

@@ -150,7 +150,7 @@ pub enum RateOutcome {
     Encoded(Box<Encoded>),
     /// The uncompressed table itself misses the budget: no codec can meet it on this grid.
     GridTooCoarse {
-        floor: Estimate,
+        floor: Box<Estimate>,
     },
 }
 
@@ -172,7 +172,9 @@ pub fn encode_within(
     let floor = est.measure(table.data());
     timings.push(("grid error".to_string(), t0.elapsed().as_secs_f64()));
     if !accepts(budget, &floor) {
-        return Ok(RateOutcome::GridTooCoarse { floor });
+        return Ok(RateOutcome::GridTooCoarse {
+            floor: Box::new(floor),
+        });
     }
     let layout = Layout::of(table);
     let c = table.channels().len();
