@@ -335,6 +335,11 @@ impl Table {
         use rayon::prelude::*;
         const CHUNK: usize = 4096;
         let layout = Layout::new(&self.grid);
+        // Cells are stored as u32 (the field's comment); the grid's own limit keeps them there.
+        assert!(
+            self.grid.cells() <= u32::MAX as usize,
+            "grid beyond MAX_CELLS"
+        );
         let parts: Vec<Stencil> = pairs
             .par_chunks(CHUNK)
             .map(|pairs| {
@@ -344,7 +349,7 @@ impl Table {
                     if let Some(t) = self.continuous_indices(wi, wo) {
                         let (wsum, tcont) =
                             self.corners_masked(&t, interp, &layout, &self.valid[..], |flat, w| {
-                                st.cells.push(flat);
+                                st.cells.push(flat as u32);
                                 st.weights.push(w);
                             });
                         if wsum > 0.0 && wsum != 1.0 {
@@ -1017,7 +1022,9 @@ pub struct Stencil {
     cells_in_grid: usize,
     /// Pair p's neighbours are `cells[ends[p-1]..ends[p]]`, with `weights` alongside.
     ends: Vec<usize>,
-    cells: Vec<usize>,
+    /// u32: a grid has at most [`crate::grid::MAX_CELLS`] (2³¹) cells, and the estimation
+    /// sets hold millions of neighbours, so half the bytes of usize count.
+    cells: Vec<u32>,
     weights: Vec<f64>,
     after: Vec<After>,
 }
@@ -1041,7 +1048,7 @@ impl Stencil {
             After::Hold(flat) => flat,
             _ => self.cells[start..self.ends[p]]
                 .iter()
-                .copied()
+                .map(|&f| f as usize)
                 .min()
                 .unwrap_or(usize::MAX),
         }
@@ -1097,6 +1104,7 @@ impl Stencil {
                     o.fill(0.0);
                     for (&flat, &w) in self.cells[start..end].iter().zip(&self.weights[start..end])
                     {
+                        let flat = flat as usize;
                         for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                             *o += w * v as f64;
                         }

@@ -423,7 +423,13 @@ mod tests {
             interp: Interp::Linear,
         };
         let g = evaluate_set(&cand, &reference.set);
-        let direct = metrics(&reference.set, &reference.values, &g, 3, None);
+        let direct = metrics(
+            &reference.set,
+            &reference.values,
+            &g,
+            reference.channels,
+            None,
+        );
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-30);
         assert!(close(e.metrics.log_rmse, direct.log_rmse));
         assert!(close(e.metrics.rmse, direct.rmse));
