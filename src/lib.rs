@@ -18,6 +18,7 @@ pub mod io;
 pub mod math;
 pub mod model;
 pub mod plan;
+pub mod plot;
 pub mod props;
 pub mod source;
 pub mod spectral;

@@ -84,18 +84,36 @@ pub struct CheckArgs {
     pub json: bool,
     #[command(flatten)]
     pub bounds: Bounds,
+    /// Also draw the error views of this check (sphere, lobes, slice, albedo of the candidate
+    /// against the reference) into FILE (.png or .svg; docs/plots.md).
+    #[arg(long, value_name = "FILE")]
+    pub plot: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub picture: super::plot::PictureArgs,
 }
 
 pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
     a.bounds.validate()?;
     validate_samples(a.samples)?;
+    // Picture options are checked before any work.
+    let picture = match &a.plot {
+        Some(p) => Some((super::plot::image_format(p, None)?, a.picture.options()?)),
+        None => None,
+    };
     let cand = Source::open(&a.candidate)?;
     let cells = match &cand {
         Source::Table(t) => Some((t.grid().clone(), t.valid().to_vec())),
         Source::Model(_) | Source::Measured(_) => None,
     };
+    let table_of = |s: &Source| match s {
+        Source::Table(t) if picture.is_some() => Some(t.clone()),
+        _ => None,
+    };
+    let cand_table = table_of(&cand);
     let cand = cand.into_brdf(a.interp)?;
-    let reference = Source::open(&a.against)?.into_brdf(a.interp)?;
+    let reference = Source::open(&a.against)?;
+    let reference_table = table_of(&reference);
+    let reference = reference.into_brdf(a.interp)?;
     let report = check(
         reference.as_ref(),
         cand.as_ref(),
@@ -107,6 +125,28 @@ pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
         },
     )?;
     let failed = verdict(&report, &a.bounds);
+    let (reference, cand) = (
+        crate::plot::Subject {
+            label: a.against.clone(),
+            brdf: reference,
+            table: reference_table,
+        },
+        crate::plot::Subject {
+            label: a.candidate.clone(),
+            brdf: cand,
+            table: cand_table,
+        },
+    );
+    if let (Some(path), Some((format, opts))) = (&a.plot, &picture) {
+        super::plot::write_picture(
+            crate::plot::View::Report,
+            &cand,
+            Some(&reference),
+            opts,
+            path,
+            *format,
+        )?;
+    }
     if a.json {
         let mut v = serde_json::to_value(&report)?;
         v["bounds_exceeded"] = serde_json::json!(failed);

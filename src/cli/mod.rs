@@ -32,6 +32,7 @@ mod eval;
 mod inspect;
 mod models;
 mod pack;
+mod plot;
 mod props;
 mod tabulate;
 
@@ -72,6 +73,9 @@ enum Command {
     Props(props::PropsArgs),
     /// List the analytic models with their parameters, defaults, ranges and properties.
     Models(models::ModelsArgs),
+    /// Pictures: a lit sphere, lobes, a θh × θd slice or albedo curves, with the error
+    /// against a reference (PNG or SVG; docs/plots.md).
+    Plot(plot::PlotArgs),
     /// Benchmarks: speed of tabulation and lookups, and a matrix of sources × grids × codecs
     /// with sizes, times and errors (CSV, JSON, Markdown, SVG).
     Bench(bench::BenchArgs),
@@ -118,6 +122,7 @@ pub fn main() -> i32 {
         Command::Inspect(a) => inspect::run(a),
         Command::Compress(a) => compress::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Plot(a) => plot::run(a),
     };
     // Whatever is still buffered (a `print!` without a newline) is written now, so that
     // its failure is reported too: std ignores errors of the flush at exit.
