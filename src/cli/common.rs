@@ -3,6 +3,7 @@
 use crate::codec::CodecRequest;
 use crate::grid::Grid;
 use crate::io::exr::{ExrCompression, ExrOptions, ExrSampleType};
+use crate::io::mbsdf::{MbsdfOptions, mbsdf_dims};
 use crate::io::merl::merl_dims;
 use crate::io::{FormatName, OutputFormat, atomic, encode_table};
 use crate::table::Table;
@@ -16,8 +17,8 @@ pub use crate::source::{Lookup, Source};
 /// How a table is written: the format (from the output name or `--format`) and its options.
 #[derive(Args, Debug, Clone)]
 pub struct OutputArgs {
-    /// Output format; default from the output name: .bpk native, .exr EXR, .binary MERL
-    /// (and native for `-`, stdout).
+    /// Output format; default from the output name: .bpk native, .exr EXR, .binary MERL,
+    /// .mbsdf MDL, .bsdf RGL (`convert` only) (and native for `-`, stdout).
     #[arg(long, value_enum, help_heading = "Output")]
     pub format: Option<FormatName>,
     /// EXR sample type (f16 values above 65504 are scaled by a recorded power of two).
@@ -30,12 +31,17 @@ pub struct OutputArgs {
     /// `zstd-f32`, `f16`, `uniform:bits=K`, `dct:step=S` ... (docs/compression.md).
     #[arg(long, default_value = "lossless", help_heading = "Output")]
     pub codec: String,
+    /// MDL .mbsdf: write a scalar file (Rec. 709 luminance) from an RGB table.
+    #[arg(long, help_heading = "Output")]
+    pub mbsdf_scalar: bool,
 }
 
 /// Where a table goes: the format, with the native codec still to be fitted to the table.
 pub enum OutputPlan {
     Native(CodecRequest),
     Other(OutputFormat),
+    /// An RGL `.bsdf`: written from a BRDF by `convert`, not from a table.
+    Rgl,
 }
 
 impl OutputArgs {
@@ -49,8 +55,8 @@ impl OutputArgs {
             .or((path.as_os_str() == "-").then_some(FormatName::Native))
             .ok_or_else(|| {
                 Error::input(format!(
-                    "-o {}: cannot tell the output format from the name; use .bpk, .exr or \
-                     .binary, or --format native|exr|merl",
+                    "-o {}: cannot tell the output format from the name; use .bpk, .exr, \
+                     .binary, .mbsdf or .bsdf, or --format native|exr|merl|mbsdf|rgl",
                     path.display()
                 ))
             })?;
@@ -61,6 +67,13 @@ impl OutputArgs {
                 grid.describe()
             )));
         }
+        if format == FormatName::Mbsdf && mbsdf_dims(grid).is_none() {
+            return Err(Error::input(format!(
+                "--grid {}: MDL .mbsdf needs a spherical3 grid with nθi = nθo, linear warps and \
+                 centred samples (e.g. `spherical3:90x90x180`)",
+                grid.describe()
+            )));
+        }
         Ok(match format {
             FormatName::Native => OutputPlan::Native(CodecRequest::parse(&self.codec)?),
             FormatName::Exr => OutputPlan::Other(OutputFormat::Exr(ExrOptions {
@@ -68,6 +81,10 @@ impl OutputArgs {
                 compression: self.exr_compression,
             })),
             FormatName::Merl => OutputPlan::Other(OutputFormat::Merl),
+            FormatName::Mbsdf => OutputPlan::Other(OutputFormat::Mbsdf(MbsdfOptions {
+                scalar: self.mbsdf_scalar,
+            })),
+            FormatName::Rgl => OutputPlan::Rgl,
         })
     }
 }
@@ -78,6 +95,12 @@ impl OutputPlan {
         Ok(match self {
             OutputPlan::Native(req) => OutputFormat::Native(req.resolve(table)?),
             OutputPlan::Other(f) => f.clone(),
+            OutputPlan::Rgl => {
+                return Err(Error::input(
+                    "an RGL .bsdf is written from a BRDF by `brdfpack convert SOURCE -o \
+                     out.bsdf`, not from a table by this command",
+                ));
+            }
         })
     }
 }

@@ -3,6 +3,7 @@
 
 use super::common::{Lookup, OutputArgs, SamplingArgs, Source};
 use crate::grid::{Grid, parse_grid_spec};
+use crate::io::mbsdf::mbsdf_dims;
 use crate::io::merl::merl_dims;
 use crate::io::{FormatName, OutputFormat, atomic, encode_table};
 use crate::table::{Interp, InterpolatedTable, Table};
@@ -20,7 +21,7 @@ pub struct ConvertArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Target grid (`merl` or KIND:DIMS[,...]). Default: the input table's grid; `merl` for
-    /// MERL output and for model inputs.
+    /// MERL output and for model inputs; `spherical3:90x90x180` for .mbsdf output.
     #[arg(long)]
     pub grid: Option<String>,
     /// Interpolation used when a table is re-gridded.
@@ -34,23 +35,35 @@ pub struct ConvertArgs {
     /// before writing MERL. An error when the input is not spectral.
     #[arg(long)]
     pub to_rgb: bool,
+    #[command(flatten)]
+    pub rgl: super::convert_rgl::RglArgs,
     /// Say on stderr how the output was made (re-gridding, notes, size).
     #[arg(short, long)]
     pub verbose: bool,
 }
 
+/// The grid of an `.mbsdf` written from a model or a table on another grid: 1° bins.
+pub const MBSDF_DEFAULT_GRID: &str = "spherical3:90x90x180";
+
 /// What the input turned out to be.
 pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
     let input = a.symmetry.apply(Source::open(&a.input)?);
+    let format = a.out.format.or_else(|| FormatName::from_path(&a.output));
+    if format == Some(FormatName::Rgl) {
+        return super::convert_rgl::run(&a, input);
+    }
     let grid = match (&a.grid, &input) {
         (Some(s), _) => parse_grid_spec(s)?,
         (None, Source::Table(t))
-            if a.out.format.or_else(|| FormatName::from_path(&a.output))
-                != Some(FormatName::Merl)
-                || merl_dims(t.grid()).is_some() =>
+            if match format {
+                Some(FormatName::Merl) => merl_dims(t.grid()).is_some(),
+                Some(FormatName::Mbsdf) => mbsdf_dims(t.grid()).is_some(),
+                _ => true,
+            } =>
         {
             t.grid().clone()
         }
+        (None, _) if format == Some(FormatName::Mbsdf) => parse_grid_spec(MBSDF_DEFAULT_GRID)?,
         (None, _) => Grid::merl(),
     };
     let output = a.out.resolve(&a.output, &grid)?;
@@ -73,6 +86,7 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
             && match &output {
                 OutputFormat::Exr(o) => o.is_lossless(),
                 OutputFormat::Native(_) | OutputFormat::Merl => true,
+                OutputFormat::Mbsdf(_) => false,
             };
         for note in &table.provenance().notes {
             eprintln!("brdfpack: note: {note}");

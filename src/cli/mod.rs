@@ -28,6 +28,7 @@ mod check;
 mod common;
 mod compress;
 mod convert;
+mod convert_rgl;
 mod eval;
 mod inspect;
 mod models;

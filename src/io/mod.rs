@@ -3,6 +3,7 @@
 
 pub mod atomic;
 pub mod exr;
+pub mod mbsdf;
 pub mod merl;
 pub mod native;
 pub mod rgl;
@@ -24,6 +25,8 @@ pub enum Format {
     Merl,
     /// RGL `.bsdf` tensor file (`tensor_file` header): a measured BRDF, not a table.
     Rgl,
+    /// MDL `.mbsdf` (magic `NVIDIA ARC MBSDF V1\n`).
+    Mbsdf,
     Unknown,
 }
 
@@ -34,6 +37,7 @@ impl Format {
             Format::Exr => "exr",
             Format::Merl => "merl",
             Format::Rgl => "rgl",
+            Format::Mbsdf => "mbsdf",
             Format::Unknown => "unknown",
         }
     }
@@ -48,6 +52,8 @@ pub fn detect(bytes: &[u8], path: &Path) -> Format {
         Format::Exr
     } else if bytes.starts_with(b"tensor_file") {
         Format::Rgl
+    } else if mbsdf::is_mbsdf(bytes) {
+        Format::Mbsdf
     } else if merl::looks_like_merl(bytes) || has_extension(path, "binary") {
         Format::Merl
     } else {
@@ -66,6 +72,7 @@ pub fn decode_table(bytes: &[u8], path: &Path) -> Result<Table> {
         Format::Native => native::from_bytes(bytes, path),
         Format::Exr => exr::from_bytes(bytes, path),
         Format::Merl => merl::from_bytes(bytes, path),
+        Format::Mbsdf => mbsdf::from_bytes(bytes, path),
         Format::Rgl => Err(Error::invalid_file(
             path,
             "an RGL .bsdf file is a measured BRDF, not a table (tabulate it on a grid instead)",
@@ -73,8 +80,8 @@ pub fn decode_table(bytes: &[u8], path: &Path) -> Result<Table> {
         Format::Unknown => Err(Error::invalid_file(
             path,
             format!(
-                "unknown format ({} bytes): expected a brdfpack table (.bpk), a brdfpack EXR or \
-                 a MERL .binary file",
+                "unknown format ({} bytes): expected a brdfpack table (.bpk), a brdfpack EXR, \
+                 a MERL .binary or an MDL .mbsdf file",
                 bytes.len()
             ),
         )),
@@ -96,6 +103,10 @@ pub enum FormatName {
     Exr,
     /// MERL `.binary` (90×90×180 halfdiff grid, RGB).
     Merl,
+    /// MDL `.mbsdf` (spherical3 grid, scalar or RGB).
+    Mbsdf,
+    /// RGL `.bsdf` for Mitsuba 3 / pbrt-v4 `measured` (written by `convert` only).
+    Rgl,
 }
 
 impl FormatName {
@@ -107,6 +118,10 @@ impl FormatName {
             Some(FormatName::Exr)
         } else if has_extension(path, "binary") {
             Some(FormatName::Merl)
+        } else if has_extension(path, "mbsdf") {
+            Some(FormatName::Mbsdf)
+        } else if has_extension(path, "bsdf") {
+            Some(FormatName::Rgl)
         } else {
             None
         }
@@ -119,6 +134,7 @@ pub enum OutputFormat {
     Native(CodecSpec),
     Exr(exr::ExrOptions),
     Merl,
+    Mbsdf(mbsdf::MbsdfOptions),
 }
 
 impl OutputFormat {
@@ -127,6 +143,7 @@ impl OutputFormat {
             OutputFormat::Native(_) => FormatName::Native,
             OutputFormat::Exr(_) => FormatName::Exr,
             OutputFormat::Merl => FormatName::Merl,
+            OutputFormat::Mbsdf(_) => FormatName::Mbsdf,
         }
     }
 }
@@ -137,6 +154,7 @@ pub fn encode_table(table: &Table, format: &OutputFormat) -> Result<Vec<u8>> {
         OutputFormat::Native(codec) => native::to_bytes(table, codec),
         OutputFormat::Exr(opts) => exr::to_bytes(table, opts),
         OutputFormat::Merl => merl::to_bytes(table),
+        OutputFormat::Mbsdf(opts) => mbsdf::to_bytes(table, opts),
     }
 }
 
@@ -206,6 +224,10 @@ mod tests {
             Format::Merl
         );
         assert_eq!(detect(b"hello", p), Format::Unknown);
+        assert_eq!(
+            detect(b"NVIDIA ARC MBSDF V1\nMBSDF_DATA=\n", p),
+            Format::Mbsdf
+        );
     }
 
     #[test]

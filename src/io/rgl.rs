@@ -10,6 +10,7 @@
 
 pub mod tensor;
 pub mod warp;
+pub mod write;
 
 use crate::brdf::{Brdf, Channels};
 use crate::geometry::Vec3;

@@ -1,0 +1,114 @@
+//! `brdfpack convert SOURCE -o out.bsdf` (or `--format rgl`): an RGL `.bsdf` for Mitsuba 3 /
+//! pbrt-v4 `measured`, written from the source as a pointwise BRDF (tables: multilinear
+//! lookup). The work is `io::rgl::write`; this file maps options and prints notes.
+
+use super::common::{Lookup, Source};
+use super::convert::ConvertArgs;
+use crate::io::atomic;
+use crate::io::rgl::write::{RglWriteOptions, rewrite_rgl, write_rgl};
+use clap::Args;
+
+/// Resolutions of an RGL `.bsdf` (defaults: RGL's 128-node NDF/VNDF, 32×32 colour grid;
+/// 16 θi slices instead of the 8 of the measured files).
+#[derive(Args, Debug, Clone)]
+pub struct RglArgs {
+    /// RGL .bsdf: incident elevation slices, uniform over [0°, 90°].
+    #[arg(long, default_value_t = RglWriteOptions::default().theta_slices, help_heading = "RGL .bsdf output")]
+    pub rgl_theta_slices: usize,
+    /// RGL .bsdf: incident azimuth slices over [−180°, 180°] (anisotropic sources only).
+    #[arg(long, default_value_t = RglWriteOptions::default().phi_slices, help_heading = "RGL .bsdf output")]
+    pub rgl_phi_slices: usize,
+    /// RGL .bsdf: colour grid n×n of the warped sample square.
+    #[arg(long, default_value_t = RglWriteOptions::default().colour_res, help_heading = "RGL .bsdf output")]
+    pub rgl_colour_res: usize,
+    /// RGL .bsdf: VNDF grid n×n over the half-vector square.
+    #[arg(long, default_value_t = RglWriteOptions::default().vndf_res, help_heading = "RGL .bsdf output")]
+    pub rgl_vndf_res: usize,
+    /// RGL .bsdf: NDF and σ columns (u_θ).
+    #[arg(long, default_value_t = RglWriteOptions::default().ndf_res, help_heading = "RGL .bsdf output")]
+    pub rgl_ndf_res: usize,
+    /// RGL .bsdf: NDF and σ rows (u_φ) for anisotropic sources.
+    #[arg(long, default_value_t = RglWriteOptions::default().ndf_phi_res, help_heading = "RGL .bsdf output")]
+    pub rgl_ndf_phi_res: usize,
+    /// RGL .bsdf: share of the warp given to a flat visible-normal density, so the tail of
+    /// the NDF keeps colour-grid nodes (0 = pure VNDF, as the measured RGL files).
+    #[arg(long, default_value_t = RglWriteOptions::default().tail_share, help_heading = "RGL .bsdf output")]
+    pub rgl_tail_share: f64,
+    /// RGL .bsdf from an RGL .bsdf: resample it (NDF, warp, colour tables rebuilt) instead of
+    /// writing its tables back unchanged.
+    #[arg(long, help_heading = "RGL .bsdf output")]
+    pub rgl_resample: bool,
+}
+
+impl RglArgs {
+    pub fn options(&self) -> RglWriteOptions {
+        RglWriteOptions {
+            theta_slices: self.rgl_theta_slices,
+            phi_slices: self.rgl_phi_slices,
+            colour_res: self.rgl_colour_res,
+            vndf_res: self.rgl_vndf_res,
+            ndf_res: self.rgl_ndf_res,
+            ndf_phi_res: self.rgl_ndf_phi_res,
+            tail_share: self.rgl_tail_share,
+            ..RglWriteOptions::default()
+        }
+    }
+}
+
+pub fn run(a: &ConvertArgs, input: Source) -> anyhow::Result<i32> {
+    if a.grid.is_some() {
+        return Err(crate::Error::input(
+            "--grid does not apply to an RGL .bsdf (its tables are set by --rgl-* options)",
+        )
+        .into());
+    }
+    if a.to_rgb {
+        return Err(crate::Error::input(
+            "--to-rgb applies to tables; for an RGL .bsdf convert to an RGB table first",
+        )
+        .into());
+    }
+    // An RGL file is written back table for table (unless it is to be clamped or resampled).
+    if let Source::Measured(_) = &input
+        && !a.symmetry.clamp_negative
+        && !a.rgl.rgl_resample
+    {
+        let bytes = atomic::read_input(std::path::Path::new(&a.input))?;
+        let out = rewrite_rgl(&bytes, &a.input)?;
+        atomic::write_output(&a.output, &out)?;
+        if a.verbose {
+            eprintln!(
+                "brdfpack: wrote {} (RGL .bsdf, {} bytes): the fields of {} unchanged",
+                a.output.display(),
+                out.len(),
+                a.input
+            );
+        }
+        return Ok(0);
+    }
+    let brdf = input.into_brdf(match a.interp {
+        crate::table::Interp::Linear => Lookup::Linear,
+        crate::table::Interp::Nearest => Lookup::Nearest,
+    })?;
+    let written = write_rgl(brdf.as_ref(), &a.rgl.options())?;
+    atomic::write_output(&a.output, &written.bytes)?;
+    if a.verbose {
+        for note in &written.notes {
+            eprintln!("brdfpack: note: {note}");
+        }
+        eprintln!(
+            "brdfpack: wrote {} (RGL .bsdf, {} bytes; NDF after {} power iterations, last \
+             change {:.1e}): {}",
+            a.output.display(),
+            written.bytes.len(),
+            written.iterations,
+            written.ndf_change,
+            written.description
+        );
+    } else {
+        for note in &written.notes {
+            eprintln!("brdfpack: note: {note}");
+        }
+    }
+    Ok(0)
+}

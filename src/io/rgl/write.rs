@@ -1,0 +1,626 @@
+//! Writing RGL `.bsdf` files (Dupuy & Jakob 2018) from any pointwise BRDF: the inverse of the
+//! reader in `io::rgl`, so that Mitsuba 3's (and pbrt-v4's) `measured` plugin evaluates the
+//! file as close to the source as the representation allows, and exactly at the colour-grid
+//! nodes of every incident slice.
+//!
+//! What is built, in order (docs/format.md, "RGL .bsdf written by brdfpack"):
+//! 1. `ndf`: D(m) on u_θ = sqrt(2θm/π) (and u_φ = (φm + π)/2π for anisotropic sources),
+//!    recovered from the BRDF's retro-reflection f(ω, ω) by power iteration
+//!    (Dupuy et al. 2015): for a Smith microfacet BRDF f(ω, ω) = F D(ω)/(4 σ(ω)²), so
+//!    D ← f(ω, ω)·σ_D(ω)², normalised to ∫ D cos θm dm = 1, until it stops changing.
+//! 2. `sigma`: σ(ω) = ∫ D(m) max(0, ω·m) dm (projected area, Heitz 2014) from the stored D.
+//! 3. `vndf`: per incident slice, the visible-normal density D(m) max(0, wi·m)/σ(wi) as a
+//!    density over the half-vector unit square (× the Jacobian u_θ sin θm of that square),
+//!    mixed with the visible-normal density of a flat D (`tail_share`) so the tail of D keeps
+//!    colour nodes, and 0 where m reflects wi below the horizon (and next to it).
+//! 4. `rgb`, `luminance`: per slice, on a uniform n×n grid of the warped sample square: each
+//!    node is mapped through the VNDF warp (Mitsuba's own inversion, solved by bisection, so
+//!    the two agree to rounding) to a half vector m, wo = reflect(wi, m), and the node holds
+//!    f(wi, wo)·cos θo·4σ(wi)/ndf(m) with ndf and σ looked up as Mitsuba looks them up, so
+//!    Mitsuba's eval reproduces f·cos θo at that node.
+
+use super::tensor::{FieldData, encode};
+use super::warp::{Grid2, SliceBlend, VndfWarp};
+use crate::brdf::Brdf;
+use crate::geometry::Vec3;
+use crate::math::{FRAC_PI_2, PI};
+use crate::{Error, Result, TOOL_VERSION};
+use rayon::prelude::*;
+
+/// Rec. 709 luminance weights (the RGL files' `luminance` matches them).
+const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
+/// Retro-reflection is read no closer to the horizon than this (f = 0 at θ = 90°).
+const RETRO_THETA_MAX: f64 = 89.0 * PI / 180.0;
+/// The slice at θi = 90° is built from wi at this elevation (wi on the horizon sees nothing).
+const SLICE_THETA_MAX: f64 = 89.5 * PI / 180.0;
+/// Colour nodes whose reflected wo falls below this height are filled from wo raised to it,
+/// so that interpolation next to the horizon sees a continuation, not a jump to 0.
+const WO_Z_MIN: f64 = 1e-3;
+/// Floors, relative to the largest value: D (keeps rgb = f/D finite), the VNDF density (every
+/// region of the half-vector square keeps some sample space) and the luminance (sampling).
+const NDF_FLOOR: f64 = 1e-6;
+const VNDF_FLOOR: f64 = 1e-5;
+const LUMINANCE_FLOOR: f64 = 1e-4;
+/// Azimuth nodes of the σ quadrature for isotropic sources.
+const SIGMA_PHI_NODES: usize = 128;
+
+/// Resolutions of the written file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RglWriteOptions {
+    /// Incident elevation slices, uniform in θi over [0°, 90°] (RGL measurements use 8).
+    pub theta_slices: usize,
+    /// Incident azimuth slices of anisotropic sources, uniform over [−π, π] (both ends kept,
+    /// so Mitsuba's φ reduction is 1: no folding).
+    pub phi_slices: usize,
+    /// Columns (u_θ) of `ndf` and `sigma` (RGL: 128).
+    pub ndf_res: usize,
+    /// Rows (u_φ) of `ndf` and `sigma` for anisotropic sources (isotropic: 2 equal rows).
+    pub ndf_phi_res: usize,
+    /// VNDF grid, H = W (RGL: 128).
+    pub vndf_res: usize,
+    /// Colour grid n × n of the warped sample square (RGL: 32 or 64).
+    pub colour_res: usize,
+    /// Most power iterations for the NDF.
+    pub max_iterations: usize,
+    /// Share κ of the warp given to a flat distribution of visible normals rather than the
+    /// VNDF, so that the tail of D is resolved by the colour grid (0: pure VNDF, as RGL).
+    pub tail_share: f64,
+}
+
+impl Default for RglWriteOptions {
+    fn default() -> Self {
+        RglWriteOptions {
+            theta_slices: 16,
+            phi_slices: 17,
+            ndf_res: 128,
+            ndf_phi_res: 65,
+            vndf_res: 128,
+            colour_res: 64,
+            max_iterations: 40,
+            tail_share: 0.3,
+        }
+    }
+}
+
+impl RglWriteOptions {
+    fn validate(&self) -> Result<()> {
+        let check = |name: &str, v: usize, lo: usize, hi: usize| {
+            if v < lo || v > hi {
+                Err(Error::input(format!(
+                    "--rgl-{name} {v}: out of range [{lo}, {hi}]"
+                )))
+            } else {
+                Ok(())
+            }
+        };
+        check("theta-slices", self.theta_slices, 2, 256)?;
+        check("phi-slices", self.phi_slices, 3, 256)?;
+        check("ndf-res", self.ndf_res, 8, 4096)?;
+        check("ndf-phi-res", self.ndf_phi_res, 3, 4096)?;
+        check("vndf-res", self.vndf_res, 8, 1024)?;
+        check("colour-res", self.colour_res, 2, 512)?;
+        check("max-iterations", self.max_iterations, 1, 1000)?;
+        if !(0.0..1.0).contains(&self.tail_share) {
+            return Err(Error::input(format!(
+                "--rgl-tail-share {}: out of range [0, 1)",
+                self.tail_share
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// A written file and what went into it.
+#[derive(Clone, Debug)]
+pub struct RglWritten {
+    pub bytes: Vec<u8>,
+    /// The file's `description` field.
+    pub description: String,
+    /// Power iterations run and the last relative change of D (max over nodes / max D).
+    pub iterations: usize,
+    pub ndf_change: f64,
+    /// What the file cannot carry, for the user.
+    pub notes: Vec<String>,
+}
+
+/// Writes `src` as an RGL `.bsdf` (RGB). One-channel sources are written as grey RGB;
+/// spectral sources and other channel counts are refused.
+pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
+    opts.validate()?;
+    let nc = src.channels().len();
+    if crate::spectral::is_spectral(src.channels()) || (nc != 1 && nc != 3) {
+        return Err(Error::input(format!(
+            "an RGL .bsdf holds R, G, B; the source has {nc} channels ({}){}",
+            src.channels().names().join(", "),
+            if crate::spectral::is_spectral(src.channels()) {
+                " of spectral samples: convert them to RGB first (e.g. a model without \
+                 wavelengths_nm, or `convert --to-rgb` to a table and write that)"
+            } else {
+                ""
+            }
+        )));
+    }
+    let isotropic = src.is_isotropic();
+    let mut notes = Vec::new();
+    if src
+        .specular_coefficient(Vec3::from_spherical(0.5, 0.0))
+        .is_some()
+    {
+        notes.push(
+            "the source's Dirac-delta (specular) part is not in the file: RGL files hold \
+             only the pointwise BRDF"
+                .to_string(),
+        );
+    }
+    let rgb_of = |wi: Vec3, wo: Vec3, buf: &mut [f64]| -> [f64; 3] {
+        src.eval(wi, wo, buf);
+        let v = if nc == 3 {
+            [buf[0], buf[1], buf[2]]
+        } else {
+            [buf[0]; 3]
+        };
+        v.map(|x| if x.is_finite() { x } else { 0.0 })
+    };
+
+    // 1. NDF by power iteration on the retro-reflection.
+    let w = opts.ndf_res;
+    let rows = if isotropic { 1 } else { opts.ndf_phi_res };
+    let nodes = NdfNodes::new(w, rows);
+    let retro: Vec<f64> = (0..rows * w)
+        .into_par_iter()
+        .map_init(
+            || vec![0.0; nc],
+            |buf, k| {
+                let (theta, phi) = nodes.angles(k);
+                let d = Vec3::from_spherical(theta.min(RETRO_THETA_MAX), phi);
+                luminance(rgb_of(d, d, buf)).max(0.0)
+            },
+        )
+        .collect();
+    let retro_max = retro.iter().cloned().fold(0.0, f64::max);
+    if retro_max.is_nan() || retro_max <= 0.0 {
+        return Err(Error::input(format!(
+            "{}: its retro-reflection f(ω, ω) is 0 everywhere, so no microfacet distribution \
+             can be recovered for an RGL file",
+            src.describe()
+        )));
+    }
+    let mut ndf = nodes.normalized(&retro);
+    let mut iterations = 0;
+    let mut ndf_change = f64::INFINITY;
+    while iterations < opts.max_iterations && ndf_change > 1e-5 {
+        let sigma = nodes.sigma(&ndf);
+        let next: Vec<f64> = retro.iter().zip(&sigma).map(|(r, s)| r * s * s).collect();
+        let next = nodes.normalized(&next);
+        let dmax = next.iter().cloned().fold(0.0, f64::max);
+        ndf_change = next
+            .iter()
+            .zip(&ndf)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+            / dmax;
+        ndf = next;
+        iterations += 1;
+    }
+    // Stored as float32; σ from the stored values, so both tables describe the same D.
+    let ndf_f32: Vec<f32> = ndf.iter().map(|&d| d as f32).collect();
+    let sigma = nodes.sigma(&ndf_f32.iter().map(|&d| d as f64).collect::<Vec<_>>());
+    let sigma_f32: Vec<f32> = sigma.iter().map(|&s| s as f32).collect();
+    // Isotropic tables are two equal rows (u_φ = 0 and 1).
+    let table_rows = if isotropic { 2 } else { rows };
+    let expand = |v: &[f32]| -> Vec<f32> {
+        if isotropic {
+            [v, v].concat()
+        } else {
+            v.to_vec()
+        }
+    };
+    let ndf_table = expand(&ndf_f32);
+    let sigma_table = expand(&sigma_f32);
+    let ndf_grid = Grid2::new(w, table_rows, ndf_table.clone());
+    let sigma_grid = Grid2::new(w, table_rows, sigma_table.clone());
+
+    // Incident slices as float32 (the values Mitsuba interpolates between).
+    let nt = opts.theta_slices;
+    let theta_i: Vec<f32> = (0..nt)
+        .map(|t| (t as f64 / (nt - 1) as f64 * FRAC_PI_2) as f32)
+        .collect();
+    let phi_i: Vec<f32> = if isotropic {
+        vec![0.0]
+    } else {
+        let np = opts.phi_slices;
+        (0..np)
+            .map(|p| (-PI + 2.0 * PI * p as f64 / (np - 1) as f64) as f32)
+            .collect()
+    };
+    let slices: Vec<(f64, f64)> = phi_i
+        .iter()
+        .flat_map(|&p| theta_i.iter().map(move |&t| (p as f64, t as f64)))
+        .collect();
+
+    // 3.–4. Per slice: VNDF density, then the colour nodes through its warp.
+    let (h, n) = (opts.vndf_res, opts.colour_res);
+    let built: Vec<Result<SliceTables>> = slices
+        .par_iter()
+        .map(|&(phi_s, theta_s)| {
+            let mut buf = vec![0.0; nc];
+            let wi = Vec3::from_spherical(theta_s.min(SLICE_THETA_MAX), phi_s);
+            let u_wi = [(theta_s / FRAC_PI_2).sqrt(), (phi_s + PI) / (2.0 * PI)];
+            let sigma_wi = sigma_grid.eval(u_wi);
+            let half = |u: [f64; 2]| -> Vec3 {
+                let phi_m = (2.0 * u[1] - 1.0) * PI + if isotropic { phi_s } else { 0.0 };
+                Vec3::from_spherical(u[0] * u[0] * FRAC_PI_2, phi_m)
+            };
+            let ndf_at = |u: [f64; 2]| ndf_grid.eval([u[0], if isotropic { 0.0 } else { u[1] }]);
+            // The warp density: a mixture of the VNDF (weight 1 − κ) and the visible-normal
+            // density of a flat D (weight κ), so the tail of D keeps a share of the colour
+            // grid proportional to κ instead of to its (tiny) VNDF mass.
+            // Half vectors that reflect wi below the horizon are never looked up: they get
+            // no sample space, and neither do the VNDF cells next to them, so that the warp's
+            // bilinear density puts no sample space across the horizon. Queries within one
+            // VNDF cell of the horizon then read the zero nodes (f·cos θo → 0 there) instead
+            // of a value that eval / wo.z would blow up.
+            let node_u =
+                |x: usize, y: usize| [x as f64 / (h - 1) as f64, y as f64 / (h - 1) as f64];
+            let mut above = vec![false; h * h];
+            for y in 0..h {
+                for x in 0..h {
+                    let m = half(node_u(x, y));
+                    above[y * h + x] = 2.0 * wi.dot(m) * m.z - wi.z > 0.0;
+                }
+            }
+            let mut visible = vec![0f64; h * h];
+            let mut ndf_nodes = vec![0f64; h * h];
+            for y in 0..h {
+                for x in 0..h {
+                    let u = node_u(x, y);
+                    let m = half(u);
+                    let sin_m = (u[0] * u[0] * FRAC_PI_2).sin();
+                    let clear = (y.saturating_sub(1)..(y + 2).min(h)).all(|yy| {
+                        (x.saturating_sub(1)..(x + 2).min(h)).all(|xx| above[yy * h + xx])
+                    });
+                    visible[y * h + x] = if clear {
+                        wi.dot(m).max(0.0) * u[0] * sin_m
+                    } else {
+                        0.0
+                    };
+                    ndf_nodes[y * h + x] = ndf_at(u);
+                }
+            }
+            let sum_true: f64 = visible.iter().zip(&ndf_nodes).map(|(v, d)| v * d).sum();
+            let sum_flat: f64 = visible.iter().sum();
+            let kappa = opts.tail_share;
+            // Density of the mixture relative to the visible-normal factor, and the share of
+            // the VNDF in it (the luminance table divides the mixture back out).
+            let mix_at = |d: f64| (1.0 - kappa) * d / sum_true + kappa / sum_flat;
+            let vndf: Vec<f64> = visible
+                .iter()
+                .zip(&ndf_nodes)
+                .map(|(v, d)| v * mix_at(*d))
+                .collect();
+            let vmax = vndf.iter().cloned().fold(0.0, f64::max);
+            let vndf: Vec<f32> = vndf
+                .iter()
+                .map(|&v| v.max(VNDF_FLOOR * vmax) as f32)
+                .collect();
+            let warp = VndfWarp::build(&vndf, 1, h, h).map_err(Error::Failure)?;
+            let blend = SliceBlend {
+                k0: 0,
+                k1: 0,
+                w0: 1.0,
+                w1: 0.0,
+            };
+            let mut rgb = vec![0f32; 3 * n * n];
+            let mut lum = vec![0f64; n * n];
+            for j in 0..n {
+                let sy = j as f64 / (n - 1) as f64;
+                let uy = bisect(|uy| warp.invert([0.0, uy], &blend)[1], sy);
+                for i in 0..n {
+                    let sx = i as f64 / (n - 1) as f64;
+                    let ux = bisect(|ux| warp.invert([ux, uy], &blend)[0], sx);
+                    let u = [ux, uy];
+                    let m = half(u);
+                    let wo = m * (2.0 * wi.dot(m)) - wi;
+                    // f at wo raised to WO_Z_MIN (f of a wo below the horizon is 0), times
+                    // cos θo clamped at 0: f·cos θo goes to 0 at the horizon, and the nodes
+                    // that map below it (only the warp's far edges) hold 0.
+                    let wo_f = if wo.z < WO_Z_MIN {
+                        let r = (wo.x * wo.x + wo.y * wo.y).sqrt();
+                        let s = (1.0 - WO_Z_MIN * WO_Z_MIN).sqrt();
+                        if r > 0.0 {
+                            Vec3::new(wo.x / r * s, wo.y / r * s, WO_Z_MIN)
+                        } else {
+                            Vec3::new(s, 0.0, WO_Z_MIN)
+                        }
+                    } else {
+                        wo
+                    };
+                    let f = rgb_of(wi, wo_f, &mut buf);
+                    let scale = wo.z.max(0.0) * 4.0 * sigma_wi / ndf_at(u);
+                    let v = f.map(|c| c * scale);
+                    for (c, value) in v.iter().enumerate() {
+                        rgb[(c * n + j) * n + i] = finite_f32(*value);
+                    }
+                    // Sampling density ∝ VNDF × luminance(rgb) ∝ f cos θo: undo the mixture.
+                    let d = ndf_at(u);
+                    let vndf_share = ((d / sum_true) / mix_at(d)).max(0.0);
+                    lum[j * n + i] = luminance(v).max(0.0) * vndf_share;
+                }
+            }
+            let lmax = lum.iter().cloned().fold(0.0, f64::max);
+            let luminance: Vec<f32> = if lmax > 0.0 {
+                lum.iter()
+                    .map(|&l| finite_f32(l.max(LUMINANCE_FLOOR * lmax)))
+                    .collect()
+            } else {
+                vec![1.0; n * n]
+            };
+            Ok(SliceTables {
+                vndf,
+                luminance,
+                rgb,
+            })
+        })
+        .collect();
+    let mut vndf = Vec::with_capacity(slices.len() * h * h);
+    let mut lum = Vec::with_capacity(slices.len() * n * n);
+    let mut rgb = Vec::with_capacity(slices.len() * 3 * n * n);
+    for s in built {
+        let s = s?;
+        vndf.extend_from_slice(&s.vndf);
+        lum.extend_from_slice(&s.luminance);
+        rgb.extend_from_slice(&s.rgb);
+    }
+
+    let description = format!(
+        "{} (written by {}: {} theta_i{} slices, colour {n}x{n}, VNDF {h}x{h}, NDF {}x{} \
+         recovered by power iteration on the retro-reflection)",
+        src.describe(),
+        TOOL_VERSION,
+        nt,
+        if isotropic {
+            String::new()
+        } else {
+            format!(" x {} phi_i", phi_i.len())
+        },
+        table_rows,
+        w
+    );
+    let np = phi_i.len();
+    let valid = vec![0xffu8; (np * nt * n * n).div_ceil(8)];
+    let fields = [
+        FieldData {
+            name: "version",
+            dtype: super::tensor::Dtype::U32,
+            shape: vec![2],
+            data: [1u32, 0].iter().flat_map(|v| v.to_le_bytes()).collect(),
+        },
+        FieldData::u8(
+            "description",
+            vec![description.len()],
+            description.as_bytes(),
+        ),
+        FieldData::f32("phi_i", vec![np], &phi_i),
+        FieldData::f32("theta_i", vec![nt], &theta_i),
+        FieldData::f32("sigma", vec![table_rows, w], &sigma_table),
+        FieldData::f32("ndf", vec![table_rows, w], &ndf_table),
+        FieldData::f32("vndf", vec![np, nt, h, h], &vndf),
+        FieldData::f32("luminance", vec![np, nt, n, n], &lum),
+        FieldData::f32("rgb", vec![np, nt, 3, n, n], &rgb),
+        FieldData::u8("jacobian", vec![1], &[1]),
+        FieldData::u8("valid", vec![valid.len()], &valid),
+    ];
+    Ok(RglWritten {
+        bytes: encode(&fields),
+        description,
+        iterations,
+        ndf_change,
+        notes,
+    })
+}
+
+/// An RGL file written back from an RGL file: validated as the reader validates it (so only
+/// files Mitsuba can load pass), then every field re-encoded with its name, dtype, shape and
+/// data unchanged, in the file's order. Mitsuba evaluates the result exactly as the original
+/// (the tables are the same bytes); resampling it through [`write_rgl`] would only add error.
+pub fn rewrite_rgl(bytes: &[u8], name: &str) -> Result<Vec<u8>> {
+    super::RglBsdf::from_bytes(bytes, name)?;
+    let file = super::tensor::TensorFile::parse(bytes, name)?;
+    let fields: Vec<FieldData> = file
+        .fields()
+        .iter()
+        .map(|f| FieldData {
+            name: &f.name,
+            dtype: f.dtype,
+            shape: f.shape.clone(),
+            data: file.raw(f).to_vec(),
+        })
+        .collect();
+    Ok(encode(&fields))
+}
+
+struct SliceTables {
+    vndf: Vec<f32>,
+    luminance: Vec<f32>,
+    rgb: Vec<f32>,
+}
+
+fn luminance(v: [f64; 3]) -> f64 {
+    LUMINANCE[0] * v[0] + LUMINANCE[1] * v[1] + LUMINANCE[2] * v[2]
+}
+
+/// A finite float32 (values beyond float32 are clamped to its largest finite value).
+fn finite_f32(v: f64) -> f32 {
+    if v.is_finite() {
+        v.clamp(f32::MIN as f64, f32::MAX as f64) as f32
+    } else {
+        0.0
+    }
+}
+
+/// The x in [0, 1] with g(x) = target for a non-decreasing continuous g with g(0) ≤ target
+/// ≤ g(1) (bisection to f64 resolution).
+fn bisect(g: impl Fn(f64) -> f64, target: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for _ in 0..64 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            break;
+        }
+        if g(mid) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The nodes of the `ndf`/`sigma` tables (columns u_θ = x/(W−1); rows u_φ = y/(R−1) over
+/// φ ∈ [−π, π], one row for isotropic sources) and the quadrature of σ and of the
+/// normalisation over them.
+struct NdfNodes {
+    width: usize,
+    rows: usize,
+    /// Per column: θ, and the weight of ∫ · sin θ dθ (trapezoid in u, dθ = π u du).
+    theta: Vec<f64>,
+    weight: Vec<f64>,
+    /// Quadrature azimuths and their weight (periodic rectangle rule).
+    phis: Vec<f64>,
+    phi_weight: f64,
+}
+
+impl NdfNodes {
+    fn new(width: usize, rows: usize) -> NdfNodes {
+        let du = 1.0 / (width - 1) as f64;
+        let theta: Vec<f64> = (0..width)
+            .map(|x| sqr_u(x as f64 * du) * FRAC_PI_2)
+            .collect();
+        let weight = (0..width)
+            .map(|x| {
+                let u = x as f64 * du;
+                let trap = if x == 0 || x == width - 1 { 0.5 } else { 1.0 };
+                trap * du * PI * u * theta[x].sin()
+            })
+            .collect();
+        // Isotropic: D is the same at every azimuth, integrate over many; anisotropic: the
+        // table's own rows (the last row repeats the first at φ = π ≡ −π).
+        let count = if rows == 1 { SIGMA_PHI_NODES } else { rows - 1 };
+        let phis = (0..count)
+            .map(|q| {
+                if rows == 1 {
+                    2.0 * PI * q as f64 / count as f64
+                } else {
+                    -PI + 2.0 * PI * q as f64 / count as f64
+                }
+            })
+            .collect();
+        NdfNodes {
+            width,
+            rows,
+            theta,
+            weight,
+            phis,
+            phi_weight: 2.0 * PI / count as f64,
+        }
+    }
+
+    /// (θ, φ) of node k = row·W + column.
+    fn angles(&self, k: usize) -> (f64, f64) {
+        let (y, x) = (k / self.width, k % self.width);
+        let phi = if self.rows == 1 {
+            0.0
+        } else {
+            (2.0 * y as f64 / (self.rows - 1) as f64 - 1.0) * PI
+        };
+        (self.theta[x], phi)
+    }
+
+    /// D at quadrature azimuth q and column x.
+    fn d(&self, ndf: &[f64], q: usize, x: usize) -> f64 {
+        if self.rows == 1 {
+            ndf[x]
+        } else {
+            ndf[q * self.width + x]
+        }
+    }
+
+    /// D floored and scaled so that ∫ D cos θm dm = 1.
+    fn normalized(&self, v: &[f64]) -> Vec<f64> {
+        let vmax = v.iter().cloned().fold(0.0, f64::max);
+        let v: Vec<f64> = v.iter().map(|&x| x.max(NDF_FLOOR * vmax)).collect();
+        let mut total = 0.0;
+        for q in 0..self.phis.len() {
+            for x in 0..self.width {
+                total += self.d(&v, q, x) * self.theta[x].cos() * self.weight[x];
+            }
+        }
+        total *= self.phi_weight;
+        v.iter().map(|x| x / total).collect()
+    }
+
+    /// σ(ω) = ∫ D(m) max(0, ω·m) dm at every node direction ω.
+    fn sigma(&self, ndf: &[f64]) -> Vec<f64> {
+        let ms: Vec<(Vec3, f64)> = (0..self.phis.len())
+            .flat_map(|q| {
+                (0..self.width).map(move |x| {
+                    let m = Vec3::from_spherical(self.theta[x], self.phis[q]);
+                    (m, self.d(ndf, q, x) * self.weight[x] * self.phi_weight)
+                })
+            })
+            .collect();
+        (0..self.rows * self.width)
+            .into_par_iter()
+            .map(|k| {
+                let (theta, phi) = self.angles(k);
+                let w = Vec3::from_spherical(theta, phi);
+                ms.iter().map(|(m, dw)| dw * w.dot(*m).max(0.0)).sum()
+            })
+            .collect()
+    }
+}
+
+fn sqr_u(u: f64) -> f64 {
+    u * u
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bisection_inverts_a_monotone_map() {
+        let x = bisect(|x| x * x * x, 0.125);
+        assert!((x - 0.5).abs() < 1e-15);
+        assert!(bisect(|x| x, 0.0) < 1e-15);
+    }
+
+    #[test]
+    fn sigma_of_a_normalised_ndf_is_one_at_the_normal() {
+        // σ(n) = ∫ D cos θm dm = 1 for any normalised D (Heitz 2014): check the quadrature.
+        let nodes = NdfNodes::new(128, 1);
+        let alpha2: f64 = 0.3 * 0.3;
+        let ggx: Vec<f64> = nodes
+            .theta
+            .iter()
+            .map(|t| {
+                let c2 = t.cos() * t.cos();
+                alpha2 / (PI * sqr_u(c2 * (alpha2 - 1.0) + 1.0))
+            })
+            .collect();
+        let d = nodes.normalized(&ggx);
+        let s = nodes.sigma(&d);
+        assert!((s[0] - 1.0).abs() < 1e-12, "{}", s[0]);
+        // GGX σ(θ) = cos θ (1 + Λ(θ)), Λ = (−1 + sqrt(1 + α² tan² θ))/2 (Heitz 2014).
+        for x in [40, 80, 110] {
+            let t = nodes.theta[x];
+            let lambda = (-1.0 + (1.0 + alpha2 * t.tan() * t.tan()).sqrt()) / 2.0;
+            let want = t.cos() * (1.0 + lambda);
+            assert!(
+                (s[x] - want).abs() < 2e-3 * want,
+                "θ {t}: {} vs {want}",
+                s[x]
+            );
+        }
+    }
+}
