@@ -14,7 +14,7 @@ pub struct ZooMaterial {
     pub spec: String,
 }
 
-/// The generated materials (36).
+/// The generated materials (31).
 pub fn materials() -> Vec<ZooMaterial> {
     let mut out = Vec::new();
     let mut add = |name: String, spec: String| out.push(ZooMaterial { name, spec });
