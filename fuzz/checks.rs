@@ -359,7 +359,7 @@ pub fn codec(data: &[u8]) {
 pub type Check = fn(&[u8]);
 
 /// Every target by its directory name under `fuzz/corpus/`.
-pub const TARGETS: [(&str, Check); 9] = [
+pub const TARGETS: [(&str, Check); 10] = [
     ("native", native),
     ("native_framed", native_framed),
     ("merl", merl),
@@ -369,4 +369,64 @@ pub const TARGETS: [(&str, Check); 9] = [
     ("eval", eval),
     ("grid", grid),
     ("codec", codec),
+    ("sizes", sizes),
 ];
+
+/// Size-lying headers (issue 20): the first 8 bytes declare a halfdiff3 grid (three u16
+/// axis sizes + 1, so up to 2⁴⁸ cells within the per-axis limit) and a channel count (u16 mod
+/// 4096 + 1); byte 8 picks the mask kind, the rest is a zstd-f32 payload. Under a 64 MiB
+/// budget, a declared table whose decoding needs more must be refused by the budget check
+/// (`needs about`), before anything of its size is allocated; libFuzzer's RSS limit catches
+/// an allocation that slips through.
+pub fn sizes(data: &[u8]) {
+    const BUDGET: u64 = 64 << 20;
+    brdfpack::memory::set_budget(BUDGET);
+    if data.len() < 9 {
+        return;
+    }
+    let u = |k: usize| u16::from_le_bytes([data[2 * k], data[2 * k + 1]]) as usize;
+    let dims = [u(0) + 1, u(1) + 1, u(2) + 1];
+    let channels = u(3) % 4096 + 1;
+    let explicit = data[8] & 1 == 1;
+    // Written by hand: the fuzz crate has no serde_json of its own.
+    let axes: Vec<String> = ["theta_h", "theta_d", "phi_d"]
+        .iter()
+        .zip(dims)
+        .map(|(q, n)| {
+            format!(r#"{{"quantity":"{q}","n":{n},"warp":"linear","placement":"center"}}"#)
+        })
+        .collect();
+    let names: Vec<String> = (0..channels).map(|i| format!("\"c{i}\"")).collect();
+    let head = format!(
+        r#"{{"format":"brdfpack-table","grid":{{"kind":"halfdiff3","axes":[{}]}},"channels":{{"names":[{}]}},"provenance":{{"source":"fuzz","tool":"fuzz"}},"codec":{{"kind":"zstd_f32","level":3}},"mask":"{}","valid_cells":1}}"#,
+        axes.join(","),
+        names.join(","),
+        if explicit { "explicit" } else { "geometric" }
+    )
+    .into_bytes();
+    let mut framed = (head.len() as u16).to_le_bytes().to_vec();
+    framed.extend_from_slice(&head);
+    framed.extend_from_slice(&data[9..]);
+    let cells = dims.iter().product::<usize>();
+    let needs = brdfpack::memory::table_bytes(cells, channels).saturating_mul(2);
+    match brdfpack::io::native::from_bytes(&frame_native(&framed), Path::new("fuzz")) {
+        Ok(t) => {
+            assert!(
+                needs <= BUDGET,
+                "{needs} bytes decoded under a {BUDGET}-byte budget"
+            );
+            assert!(t.data().iter().all(|x| x.is_finite()));
+        }
+        Err(e) => {
+            assert_eq!(e.exit_code(), 2, "{e}");
+            // Refused up front: by the budget, or by the grid's cell limit (2³¹).
+            let m = e.to_string();
+            if needs > BUDGET {
+                assert!(
+                    m.contains("needs about") || m.contains("exceed the limit"),
+                    "{dims:?} × {channels}: {m}"
+                );
+            }
+        }
+    }
+}

@@ -117,6 +117,18 @@ pub trait Brdf: Send + Sync {
         None
     }
 
+    /// True when the pair lies inside the domain where the source holds values: a table
+    /// stored up to θmax has none beyond it (tabulation marks such cells invalid; checks
+    /// sample only inside). Models and measured files cover the whole hemisphere.
+    fn in_domain(&self, _wi: Vec3, _wo: Vec3) -> bool {
+        true
+    }
+
+    /// The stored θ limit of the source in degrees (a table's θmax), when it has one.
+    fn theta_max_deg(&self) -> Option<f64> {
+        None
+    }
+
     /// The analytic model behind this source, when it is one (lets tabulation pick a fast
     /// path that exploits the model's structure).
     fn as_model(&self) -> Option<&crate::model::Model> {

@@ -83,6 +83,26 @@ impl SampleSet {
         }
     }
 
+    /// The pairs for which `keep` holds (weights kept alongside).
+    pub fn restricted(&self, keep: impl Fn(Vec3, Vec3) -> bool) -> SampleSet {
+        let mut pairs = Vec::new();
+        let mut weights = self.weights.as_ref().map(|_| Vec::new());
+        for (p, &(wi, wo)) in self.pairs.iter().enumerate() {
+            if keep(wi, wo) {
+                pairs.push((wi, wo));
+                if let (Some(w), Some(all)) = (weights.as_mut(), self.weights.as_ref()) {
+                    w.push(all[p]);
+                }
+            }
+        }
+        SampleSet {
+            name: self.name.clone(),
+            seed: self.seed,
+            pairs,
+            weights,
+        }
+    }
+
     /// `specular`: wi uniform, wo uniform in solid angle within 3° of wi's mirror direction
     /// (redrawn when that falls below the horizon).
     pub fn specular(n: usize, seed: u64) -> SampleSet {
@@ -211,6 +231,24 @@ pub fn evaluate_pairs(
             candidate.channels().len(),
             candidate.channels().names().join(","),
             reference.channels().names().join(",")
+        )));
+    }
+    // Same count is not enough: RGB against spectral samples (or spectral samples at other
+    // wavelengths) would be compared channel by channel, a number with no meaning.
+    let (wr, wc) = (
+        reference.channels().wavelengths_nm(),
+        candidate.channels().wavelengths_nm(),
+    );
+    if wr != wc {
+        let describe = |w: Option<&[f64]>, ch: &crate::brdf::Channels| match w {
+            Some(w) => format!("spectral at {w:?} nm"),
+            None => format!("not spectral ({})", ch.names().join(",")),
+        };
+        return Err(Error::input(format!(
+            "the candidate is {} but the reference is {}: convert the spectral one to RGB first \
+             (--to-rgb of tabulate and convert)",
+            describe(wc, candidate.channels()),
+            describe(wr, reference.channels())
         )));
     }
     Ok((evaluate_set(reference, set), evaluate_set(candidate, set)))
@@ -406,6 +444,10 @@ pub struct CheckReport {
     /// max over 16 θi of |a_g(θi) − a_f(θi)| (directional albedo), when computed.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub albedo_err: Option<f64>,
+    /// The θ limit in degrees the sets were restricted to (the smaller stored domain of the
+    /// two sources), when one of them is a table stored up to θmax.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub theta_max_deg: Option<f64>,
 }
 
 /// Checks `candidate` against `reference`. `cells`: the candidate table's grid and validity,
@@ -416,10 +458,22 @@ pub fn check(
     cells: Option<(&Grid, &[bool])>,
     opts: &CheckOptions,
 ) -> Result<CheckReport> {
+    // Only where both sources hold values: beyond a table's θmax there is nothing to compare
+    // (its 0 there is no value), so errors there would be errors no one asked for.
+    let theta_max_deg = match (reference.theta_max_deg(), candidate.theta_max_deg()) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    };
+    let domain = |set: SampleSet| -> SampleSet {
+        if theta_max_deg.is_none() {
+            return set;
+        }
+        set.restricted(|wi, wo| reference.in_domain(wi, wo) && candidate.in_domain(wi, wo))
+    };
     let uniform = check_set(
         reference,
         candidate,
-        &SampleSet::uniform(opts.samples, opts.seed),
+        &domain(SampleSet::uniform(opts.samples, opts.seed)),
     )?;
     let mut others = Vec::new();
     if opts.all_sets {
@@ -427,18 +481,18 @@ pub fn check(
         others.push(check_set(
             reference,
             candidate,
-            &SampleSet::grazing(n, opts.seed),
+            &domain(SampleSet::grazing(n, opts.seed)),
         )?);
         others.push(check_set(
             reference,
             candidate,
-            &SampleSet::specular(n, opts.seed),
+            &domain(SampleSet::specular(n, opts.seed)),
         )?);
         if let Some((grid, valid)) = cells {
             others.push(check_set(
                 reference,
                 candidate,
-                &SampleSet::cells(grid, valid),
+                &domain(SampleSet::cells(grid, valid)),
             )?);
         }
     }
@@ -453,6 +507,7 @@ pub fn check(
         others,
         worst_other,
         albedo_err: opts.all_sets.then(|| albedo_error(reference, candidate)),
+        theta_max_deg,
     })
 }
 
@@ -516,8 +571,8 @@ impl CheckReport {
     pub fn to_table(&self) -> String {
         use std::fmt::Write;
         let mut s = String::new();
-        let _ = writeln!(s, "reference: {}", self.reference);
-        let _ = writeln!(s, "candidate: {}", self.candidate);
+        let _ = writeln!(s, "reference: {}", crate::text::sanitize(&self.reference));
+        let _ = writeln!(s, "candidate: {}", crate::text::sanitize(&self.candidate));
         let u = &self.uniform;
         let _ = writeln!(
             s,
@@ -526,6 +581,13 @@ impl CheckReport {
             u.seed.unwrap_or(0),
             u.combined.epsilon
         );
+        if let Some(t) = self.theta_max_deg {
+            let _ = writeln!(
+                s,
+                "domain: θi, θo ≤ {t}° only (the stored domain of the table); pairs beyond it \
+                 are not sampled"
+            );
+        }
         let mut header = format!("{:<14} {:>12}", "metric", "uniform");
         if self.worst_other.is_some() {
             let names: Vec<&str> = self.others.iter().map(|o| o.set.as_str()).collect();

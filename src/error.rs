@@ -53,7 +53,12 @@ impl Error {
             Error::Input(_) | Error::InvalidFile { .. } => 2,
             Error::Io { source, .. } => match source.kind() {
                 // A missing or unreadable input file is the user's to fix.
-                std::io::ErrorKind::NotFound | std::io::ErrorKind::PermissionDenied => 2,
+                // So is a name that is too long, or a directory where a file is needed.
+                std::io::ErrorKind::NotFound
+                | std::io::ErrorKind::PermissionDenied
+                | std::io::ErrorKind::InvalidFilename
+                | std::io::ErrorKind::IsADirectory
+                | std::io::ErrorKind::NotADirectory => 2,
                 _ => 1,
             },
             Error::Failure(_) => 1,

@@ -16,6 +16,7 @@ pub mod geometry;
 pub mod grid;
 pub mod io;
 pub mod math;
+pub mod memory;
 pub mod model;
 pub mod plan;
 pub mod plot;
@@ -24,6 +25,7 @@ pub mod source;
 pub mod spectral;
 pub mod table;
 pub mod tabulate;
+pub mod text;
 
 pub use error::{Error, Result};
 

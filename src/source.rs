@@ -32,10 +32,25 @@ pub enum Source {
 }
 
 impl Source {
-    /// Opens `spec`: an existing file (or `-`) by its content, anything else as a model spec.
+    /// Opens `spec`: a model spec, else an existing file (or `-`) by its content. A model
+    /// spec is never shadowed by a file of the same name in the working directory: `./lambert`
+    /// (a name starting with `./`, `../` or `/`) always means the file.
     pub fn open(spec: &str) -> Result<Source> {
         let path = Path::new(spec);
-        if spec == "-" || path.is_file() {
+        let explicit_path = spec == "-"
+            || spec.starts_with("./")
+            || spec.starts_with("../")
+            || spec.starts_with('/');
+        let parsed = if explicit_path {
+            None
+        } else {
+            match Model::parse(spec) {
+                Ok(m) => return Ok(Source::Model(m)),
+                Err(e) => Some(e),
+            }
+        };
+        // Any existing non-directory: regular files, and devices, FIFOs, /dev/stdin.
+        if spec == "-" || path.exists() {
             let bytes = atomic::read_input(path)?;
             return match io::detect(&bytes, path) {
                 Format::Rgl => Ok(Source::Measured(RglBsdf::from_bytes(
@@ -45,21 +60,23 @@ impl Source {
                 _ => Ok(Source::Table(io::decode_table(&bytes, path)?)),
             };
         }
-        match Model::parse(spec) {
-            Ok(m) => Ok(Source::Model(m)),
-            // A name that looks like a file but is none: say so rather than "unknown model".
-            Err(_)
-                if !spec.starts_with('@')
-                    && !spec.starts_with('{')
-                    && (io::FormatName::from_path(path).is_some() || spec.contains('/')) =>
-            {
-                Err(Error::io(
-                    path,
-                    std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
-                ))
-            }
-            Err(e) => Err(e),
+        let Some(parse_error) = parsed else {
+            return Err(Error::io(
+                path,
+                std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+            ));
+        };
+        // A name that looks like a file but is none: say so rather than "unknown model".
+        if !spec.starts_with('@')
+            && !spec.starts_with('{')
+            && (io::FormatName::from_path(path).is_some() || spec.contains('/'))
+        {
+            return Err(Error::io(
+                path,
+                std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+            ));
         }
+        Err(parse_error)
     }
 
     /// The source as a pointwise BRDF; tables are evaluated by `lookup`. Errors for a

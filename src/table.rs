@@ -1279,6 +1279,12 @@ impl Brdf for InterpolatedTable {
         // whatever their source was, which the table does not promise.
         self.table.grid().kind() == crate::grid::GridKind::Halfdiff3
     }
+    fn in_domain(&self, wi: Vec3, wo: Vec3) -> bool {
+        self.table.grid().theta_max().is_none() || self.table.grid().in_domain(wi, wo)
+    }
+    fn theta_max_deg(&self) -> Option<f64> {
+        self.table.grid().theta_max_deg()
+    }
     fn describe(&self) -> String {
         format!(
             "table {} of {}",

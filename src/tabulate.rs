@@ -28,9 +28,25 @@ const CHUNK_CELLS: usize = 8192;
 /// Tabulates `src` on `grid`. Cells whose sample pair is below the horizon or beyond θmax
 /// are marked invalid (not silently 0).
 pub fn tabulate(src: &dyn Brdf, grid: &Grid, opts: &TabulateOptions) -> Result<Table> {
+    require_memory(src, grid)?;
     let mut table = Table::zeroed(grid.clone(), src.channels().clone());
     tabulate_into(src, grid, opts, &mut table)?;
     Ok(table)
+}
+
+/// Refuses a grid whose table (with the copies a command holds) exceeds the memory budget,
+/// before anything is allocated: `--grid spherical4:215` is inside the axis limits but
+/// needs ~10 GB per channel.
+fn require_memory(src: &dyn Brdf, grid: &Grid) -> Result<()> {
+    crate::memory::require_table(
+        &format!(
+            "a table of {} × {} channel(s)",
+            grid.describe(),
+            src.channels().len()
+        ),
+        grid.cells(),
+        src.channels().len(),
+    )
 }
 
 /// Like [`tabulate`], into an existing table whose allocation is reused when its size fits
@@ -44,6 +60,7 @@ pub fn tabulate_into(
     opts: &TabulateOptions,
     table: &mut Table,
 ) -> Result<()> {
+    require_memory(src, grid)?;
     let mut notes = Vec::new();
     if grid.kind().is_isotropic() && !src.is_isotropic() {
         if !opts.allow_anisotropic {
@@ -141,14 +158,17 @@ fn tabulate_generic(
                 // The buffers may hold an earlier table: write every cell.
                 *okj = false;
                 vals[j * c..(j + 1) * c].fill(0.0);
-                if !grid.in_domain(wi, wo) {
+                // Outside the source's stored domain (a θmax table re-gridded) there is
+                // no value: invalid, not 0.
+                if !grid.in_domain(wi, wo) || !src.in_domain(wi, wo) {
                     continue;
                 }
                 src.eval(wi, wo, &mut buf);
                 for (k, &v) in buf.iter().enumerate() {
                     let f = v as f32;
+                    // The source's parameters are the user's: input at fault (exit 2).
                     if !f.is_finite() {
-                        return Err(Error::Failure(format!(
+                        return Err(Error::Input(format!(
                             "{} gave {v} at cell {cell} (wi = {:?}, wo = {:?}), which f32 storage \
                              cannot hold",
                             src.describe(),

@@ -61,11 +61,19 @@ pub struct BenchArgs {
     pub zoo_effort: String,
 }
 
+/// Most worker threads `bench` starts: 100000 threads would spend minutes being created
+/// (and a stack each) before any work.
+const MAX_THREADS: usize = 1024;
+
 pub fn run(a: BenchArgs) -> anyhow::Result<i32> {
+    super::check::validate_pairs("--pairs", a.pairs)?;
     let mut pool = rayon::ThreadPoolBuilder::new();
     if let Some(n) = a.threads {
-        if n == 0 {
-            return Err(crate::Error::input("--threads 0: give at least 1 thread").into());
+        if n == 0 || n > MAX_THREADS {
+            return Err(crate::Error::input(format!(
+                "--threads {n} is out of range [1, {MAX_THREADS}]"
+            ))
+            .into());
         }
         pool = pool.num_threads(n);
     }

@@ -176,12 +176,19 @@ pub fn verdict(report: &crate::check::CheckReport, bounds: &Bounds) -> Vec<Strin
         .collect()
 }
 
-/// `--samples` must be in [1, 10^8] (a sample set is held in memory).
+/// `--samples` must be in [1, 10^8] and its pairs and values fit the memory budget (a
+/// sample set is held in memory).
 pub fn validate_samples(n: usize) -> crate::Result<()> {
+    validate_pairs("--samples", n)
+}
+
+/// A count of direction pairs held in memory (`--samples`, `--pairs`): in [1, 10^8] and
+/// within the memory budget.
+pub fn validate_pairs(flag: &str, n: usize) -> crate::Result<()> {
     if n == 0 || n > 100_000_000 {
         return Err(crate::Error::input(format!(
-            "--samples {n} is out of range [1, 100000000]"
+            "{flag} {n} is out of range [1, 100000000]"
         )));
     }
-    Ok(())
+    crate::memory::require(&format!("{flag} {n}"), crate::memory::pair_bytes(n))
 }

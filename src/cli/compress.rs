@@ -77,9 +77,7 @@ fn read_table(input: &str, grid: Option<&str>, symmetry: &SamplingArgs) -> anyho
 }
 
 pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
-    if a.samples == 0 {
-        return Err(Error::input("--samples must be at least 1").into());
-    }
+    super::check::validate_samples(a.samples)?;
     let effort = Effort::parse(&a.effort)?;
     if let Some(b) = &a.max_error {
         return run_budget(&a, Budget::parse(b)?, effort);

@@ -121,12 +121,23 @@ pub struct EvalArgs {
     /// Print the (normalized) wi and wo before the values of each row.
     #[arg(long, help_heading = "Output")]
     pub echo: bool,
+    /// Print 0 for pairs beyond a table's stored θmax instead of refusing them (exit 2).
+    #[arg(long)]
+    pub outside_domain_zero: bool,
 }
 
 /// Longest stream line accepted, in bytes (a pair needs well under 200).
 const MAX_LINE_BYTES: usize = 64 * 1024;
 
 pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
+    // stdin cannot hold both the source and the stream of pairs.
+    if args.source == "-" && single_pair(&args)?.is_none() {
+        return Err(Error::input(
+            "eval -: stdin holds the source, so the pairs cannot be streamed on it too; give \
+             one pair with --wi/--wo (or --wi-deg/--wo-deg), or name the source as a file",
+        )
+        .into());
+    }
     let brdf = crate::source::Source::open(&args.source)
         .map(|s| match s {
             crate::source::Source::Measured(m) if args.clamp_negative => {
@@ -136,8 +147,12 @@ pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
         })
         .and_then(|s| s.into_brdf(args.interp))
         .map_err(|e| prefix_error(e, &format!("source {:?}", args.source)))?;
-    let writer = RowWriter::new(&*brdf, args.format, args.echo);
+    let mut writer = RowWriter::new(&*brdf, args.format, args.echo);
+    writer.outside_domain_zero = args.outside_domain_zero;
     let pair = single_pair(&args)?;
+    if let Some((wi, wo)) = pair {
+        writer.check_domain(wi, wo).map_err(Error::Input)?;
+    }
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
     let result = match pair {
@@ -344,7 +359,12 @@ fn eval_stream<R: BufRead, W: Write>(
             continue;
         }
         match parse_line(line, form) {
-            Ok(Some((wi, wo))) => writer.row(out, wi, wo).map_err(super::stdout_error)?,
+            Ok(Some((wi, wo))) => {
+                if let Err(msg) = writer.check_domain(wi, wo) {
+                    return Err(bad(msg, line.as_bytes()));
+                }
+                writer.row(out, wi, wo).map_err(super::stdout_error)?
+            }
             Ok(None) => {}
             Err(msg) => return Err(bad(msg, line.as_bytes())),
         }
@@ -366,11 +386,32 @@ struct RowWriter<'a> {
     brdf: &'a dyn Brdf,
     format: OutputFormat,
     echo: bool,
+    outside_domain_zero: bool,
 }
 
 impl<'a> RowWriter<'a> {
     fn new(brdf: &'a dyn Brdf, format: OutputFormat, echo: bool) -> Self {
-        RowWriter { brdf, format, echo }
+        RowWriter {
+            brdf,
+            format,
+            echo,
+            outside_domain_zero: false,
+        }
+    }
+
+    /// A pair above the horizon but beyond the source's stored θmax has no value: an error
+    /// (docs/parameterizations.md) unless `--outside-domain-zero` asks for 0.
+    fn check_domain(&self, wi: Vec3, wo: Vec3) -> std::result::Result<(), String> {
+        if self.outside_domain_zero || wi.z <= 0.0 || wo.z <= 0.0 || self.brdf.in_domain(wi, wo) {
+            return Ok(());
+        }
+        Err(format!(
+            "pair ({:?}, {:?}) is outside the stored domain θ ≤ {}° of the table; pass \
+             --outside-domain-zero to print 0 there",
+            wi.to_array(),
+            wo.to_array(),
+            self.brdf.theta_max_deg().unwrap_or(90.0)
+        ))
     }
 
     /// The csv header (channel names, after the echoed directions); nothing for other forms.
@@ -383,7 +424,8 @@ impl<'a> RowWriter<'a> {
             names.extend(["wix", "wiy", "wiz", "wox", "woy", "woz"]);
         }
         names.extend(self.brdf.channels().names().iter().map(String::as_str));
-        writeln!(out, "{}", names.join(","))
+        // Channel names come from the file: no terminal controls reach stdout.
+        writeln!(out, "{}", crate::text::sanitize(&names.join(",")))
     }
 
     fn row<W: Write>(&self, out: &mut W, wi: Vec3, wo: Vec3) -> std::io::Result<()> {

@@ -3,6 +3,7 @@
 
 use crate::io::{Format, atomic, decode_table, detect};
 use crate::table::Table;
+use crate::text::sanitize;
 use clap::Args;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -107,12 +108,12 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
                     "bytes": bytes.len(), "table": false, "rgl": info})
             );
         } else {
-            outln!("file: {}", a.file.display());
+            outln!("file: {}", sanitize(&a.file.display().to_string()));
             outln!(
                 "format: rgl ({} bytes; a measured BRDF, not a table)",
                 bytes.len()
             );
-            outln!("description: {}", info.description);
+            outln!("description: {}", sanitize(&info.description));
             outln!(
                 "resolution: {}x{} samples per slice, {} θi slices, {} φi slice(s), VNDF {}x{}",
                 info.resolution[0],
@@ -159,14 +160,14 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
         outln!("{}", serde_json::to_string_pretty(&r)?);
         return Ok(0);
     }
-    outln!("file: {}", r.file);
+    outln!("file: {}", sanitize(&r.file));
     outln!("format: {} ({} bytes)", r.format, r.bytes);
     outln!("grid: {}", r.grid);
-    outln!("channels: {}", r.channels.join(" "));
-    outln!("source: {}", r.source);
-    outln!("tool: {}", r.tool);
+    outln!("channels: {}", sanitize(&r.channels.join(" ")));
+    outln!("source: {}", sanitize(&r.source));
+    outln!("tool: {}", sanitize(&r.tool));
     for n in &r.notes {
-        outln!("note: {n}");
+        outln!("note: {}", sanitize(n));
     }
     outln!(
         "cells: {} (valid {}, invalid {})",
@@ -182,7 +183,7 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
     for s in &r.stats {
         outln!(
             "channel {}: min {:.6e} max {:.6e} mean {:.6e} (1/sr)",
-            s.name,
+            sanitize(&s.name),
             s.min,
             s.max,
             s.mean

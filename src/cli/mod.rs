@@ -48,6 +48,14 @@ pub use eval::{
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Memory budget, e.g. 512M or 8G (default: $BRDFPACK_MAX_MEMORY, else 2G). Work that
+    /// would need more (a huge grid, sample count or a file's declared size) is refused up
+    /// front with the memory it needs (exit 2).
+    #[arg(long, global = true, value_name = "SIZE")]
+    max_memory: Option<String>,
+    /// Write binary output (`-o -`) to stdout even when it is a terminal.
+    #[arg(long, global = true)]
+    force_terminal: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -112,6 +120,18 @@ pub fn main() -> i32 {
             return if e.use_stderr() { 2 } else { 0 };
         }
     };
+    let budget = match &cli.max_memory {
+        Some(s) => crate::memory::parse_size(s)
+            .map(Some)
+            .map_err(|e| crate::Error::input(format!("--max-memory {e}"))),
+        None => crate::memory::budget_from_env(),
+    };
+    match budget {
+        Ok(Some(b)) => crate::memory::set_budget(b),
+        Ok(None) => {}
+        Err(e) => return report_error(&e.into()),
+    }
+    crate::io::atomic::allow_binary_to_terminal(cli.force_terminal);
     let result = match cli.command {
         Command::Eval(a) => eval::run(a),
         Command::Tabulate(a) => tabulate::run(a),
@@ -163,6 +183,8 @@ fn report_error(e: &anyhow::Error) -> i32 {
             msg.push_str(&cause);
         }
     }
+    // Messages quote file text and arguments: no terminal controls, and no 100 KB lines.
+    let msg = crate::text::sanitize_line(&msg);
     let _ = writeln!(std::io::stderr().lock(), "brdfpack: {msg}");
     code
 }

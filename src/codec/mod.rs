@@ -511,7 +511,7 @@ impl CodecSpec {
     /// cells are 0.
     pub fn decode(&self, payload: &[u8], layout: &Layout) -> Result<Vec<f32>> {
         self.validate(layout)?;
-        let mut out = vec![0f32; layout.values()?];
+        let mut out = crate::memory::try_filled(layout.values()?, 0f32, "decoded table")?;
         self.decode_into(payload, layout, &mut out)?;
         Ok(out)
     }
@@ -993,7 +993,16 @@ impl CodecRequest {
             let (k, v) = part.split_once('=').ok_or_else(|| {
                 Error::input(format!("codec {spec:?}: option {part:?} is not key=value"))
             })?;
-            kv.insert(k.trim().to_string(), v.trim().to_string());
+            // A repeated option is an error (which one was meant?), not "the last wins".
+            if kv
+                .insert(k.trim().to_string(), v.trim().to_string())
+                .is_some()
+            {
+                return Err(Error::input(format!(
+                    "codec {spec:?}: option {:?} is given twice",
+                    k.trim()
+                )));
+            }
         }
         let bad = |k: &str, v: &str, want: &str| {
             Error::input(format!("codec {spec:?}: {k} = {v:?}, expected {want}"))

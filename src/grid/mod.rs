@@ -380,6 +380,10 @@ impl Grid {
     pub fn theta_max(&self) -> Option<f64> {
         self.theta_max
     }
+    /// θmax in degrees as given (no round trip through radians).
+    pub fn theta_max_deg(&self) -> Option<f64> {
+        self.theta_max_deg
+    }
     pub fn shape(&self) -> Vec<usize> {
         self.axes.iter().map(|a| a.n).collect()
     }

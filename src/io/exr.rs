@@ -324,6 +324,8 @@ pub fn read_header(bytes: &[u8], path: &Path) -> Result<ExrHeader> {
     let AttributeValue::Text(t) = attr else {
         return Err(bad(format!("attribute `{ATTRIBUTE}` is not text")));
     };
+    crate::text::reject_duplicate_json_keys(t.as_slice())
+        .map_err(|e| bad(format!("attribute `{ATTRIBUTE}` JSON: {e}")))?;
     let header: ExrHeader = serde_json::from_slice(t.as_slice())
         .map_err(|e| bad(format!("attribute `{ATTRIBUTE}` JSON: {e}")))?;
     if header.format != "brdfpack-exr" || header.version != 1 {
@@ -369,6 +371,24 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     if channels.len() > crate::io::native::MAX_CHANNELS {
         return Err(bad(format!("{} channels exceed the limit", channels.len())));
     }
+    // Before the exr crate decodes anything: every pixel channel of the file in memory,
+    // then the table (and its exact values) built from them.
+    let file_channels = 1 + channels.len() * if header.exact.is_some() { 3 } else { 1 };
+    crate::memory::require(
+        &format!(
+            "the EXR pixels of {} with {file_channels} channel(s)",
+            grid.describe()
+        ),
+        (grid.cells() as u64)
+            .saturating_mul(file_channels as u64 * 4)
+            .saturating_add(crate::memory::table_bytes(grid.cells(), channels.len()))
+            .saturating_add(if header.exact.is_some() {
+                (grid.cells() as u64).saturating_mul(channels.len() as u64 * 8)
+            } else {
+                0
+            }),
+    )
+    .map_err(|e| bad(e.to_string()))?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

@@ -90,6 +90,12 @@ impl MerlTable {
                 }
             )));
         }
+        // The raw f64 values, then the table's f32 samples, exact f64 values and flags.
+        crate::memory::require(
+            &format!("MERL data of {} {} {} bins", dims[0], dims[1], dims[2]),
+            (n as u64).saturating_mul(24 + 12 + 24 + 1),
+        )
+        .map_err(|e| bad(e.to_string()))?;
         let mut raw = Vec::with_capacity(3 * n);
         for (i, b) in bytes[HEADER_BYTES..].chunks_exact(8).enumerate() {
             let v = f64::from_le_bytes(b.try_into().expect("8 bytes"));

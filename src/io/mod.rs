@@ -2,6 +2,7 @@
 //! table in the format its name (or an explicit choice) asks for.
 
 pub mod atomic;
+pub mod cleanup;
 pub mod exr;
 pub mod mbsdf;
 pub mod merl;

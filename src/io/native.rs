@@ -237,6 +237,8 @@ fn parse_header(head: &[u8], path: &Path) -> Result<Header> {
     if head.len() as u64 > MAX_HEADER {
         return Err(Error::invalid_file(path, "header larger than 16 MiB"));
     }
+    crate::text::reject_duplicate_json_keys(head)
+        .map_err(|e| Error::invalid_file(path, format!("header JSON: {e}")))?;
     let h: Header = serde_json::from_slice(head)
         .map_err(|e| Error::invalid_file(path, format!("header JSON: {e}")))?;
     if h.format != "brdfpack-table" {
@@ -272,6 +274,23 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
         ));
     }
     let cells = grid.cells();
+    // Before the mask or any sample is allocated: the decoded table plus the decoder's
+    // scratch (and the exact f64 values, raw bytes and parsed), against the budget.
+    let exact_bytes = match h.exact {
+        Some(_) => (cells as u64).saturating_mul(channels.len() as u64 * 16),
+        None => 0,
+    };
+    crate::memory::require(
+        &format!(
+            "the declared {} table with {} channel(s)",
+            grid.describe(),
+            channels.len()
+        ),
+        crate::memory::table_bytes(cells, channels.len())
+            .saturating_mul(2)
+            .saturating_add(exact_bytes),
+    )
+    .map_err(in_file)?;
     let valid = match h.mask {
         MaskKind::Geometric => grid.geometric_mask(),
         MaskKind::Explicit => {

@@ -326,7 +326,11 @@ impl Brdf for RglBsdf {
     }
 
     fn describe(&self) -> String {
-        let mut s = format!("RGL measured BRDF {}", self.info.description);
+        // The description is file text: it reaches terminals through reports and provenance.
+        let mut s = format!(
+            "RGL measured BRDF {}",
+            crate::text::sanitize(&self.info.description)
+        );
         if self.clamp_negative {
             s.push_str(" (negative values clamped to 0)");
         }

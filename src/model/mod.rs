@@ -131,6 +131,12 @@ impl Model {
             ));
         }
         if spec.starts_with('{') {
+            crate::text::reject_duplicate_json_keys(spec.as_bytes()).map_err(|e| {
+                Error::input(format!(
+                    "model JSON {}: {e}",
+                    crate::text::sanitize_short(spec)
+                ))
+            })?;
             let v: Value = serde_json::from_str(spec)
                 .map_err(|e| Error::input(format!("model JSON {spec:?}: {e}")))?;
             return Model::from_json(&v);
@@ -487,6 +493,8 @@ fn read_spec_file(path: &str) -> Result<Value> {
             format!("model spec larger than {MAX_SPEC_FILE_BYTES} bytes"),
         ));
     }
+    crate::text::reject_duplicate_json_keys(text.as_bytes())
+        .map_err(|e| Error::invalid_file(path, format!("model JSON: {e}")))?;
     serde_json::from_str(&text).map_err(|e| Error::invalid_file(path, format!("model JSON: {e}")))
 }
 

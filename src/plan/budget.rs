@@ -44,6 +44,11 @@ impl Budget {
                         "--max-error: {k} = {v:?} is not a non-negative number"
                     ))
                 })?;
+            if bounds.iter().any(|(b, _)| b == k) {
+                return Err(Error::input(format!(
+                    "--max-error {s:?}: {k} is given twice"
+                )));
+            }
             bounds.push((k.to_string(), v));
         }
         if bounds.is_empty() {

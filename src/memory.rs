@@ -1,0 +1,175 @@
+//! The memory budget: one resource model for every reader and every command.
+//!
+//! Sizes a file or a flag declares (cells × channels, payload lengths, sample and pair counts)
+//! are turned into bytes and checked against one budget *before* anything of that size is
+//! allocated, so a 1 KB header that claims 2³¹ cells, or a grid inside the documented limits
+//! that would need 10 GB, is refused at once with the memory it would need (exit 2) instead
+//! of aborting in the allocator (exit 134) or swapping for minutes.
+//!
+//! The budget is `--max-memory` (a global flag), else the `BRDFPACK_MAX_MEMORY` environment
+//! variable, else [`DEFAULT_BUDGET`] (2 GiB: a fixed number, so a command is accepted or
+//! refused the same way on every machine; a 64⁴ RGB table is 200 MB, MERL 17 MB).
+//! docs/robustness.md lists what each command counts.
+
+use crate::{Error, Result};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Default budget when neither the flag nor the environment sets one.
+pub const DEFAULT_BUDGET: u64 = 2 << 30;
+/// Name of the environment variable that sets the budget.
+pub const ENV: &str = "BRDFPACK_MAX_MEMORY";
+/// Copies of its largest table a command may hold at once: the table, its encoded bytes or
+/// a decoding scratch, and a decoded copy to check (pack, compress, convert).
+pub const WORKING_COPIES: u64 = 3;
+
+/// 0 = not set by the flag (the environment or the default applies).
+static BUDGET: AtomicU64 = AtomicU64::new(0);
+
+/// Sets the budget for this process (the `--max-memory` flag).
+pub fn set_budget(bytes: u64) {
+    BUDGET.store(bytes.max(1), Ordering::Relaxed);
+}
+
+/// The budget in bytes: the flag, else `BRDFPACK_MAX_MEMORY`, else [`DEFAULT_BUDGET`].
+/// An unparsable environment value is reported by [`budget_from_env`] at startup; here it
+/// falls back to the default.
+pub fn budget() -> u64 {
+    match BUDGET.load(Ordering::Relaxed) {
+        0 => budget_from_env().ok().flatten().unwrap_or(DEFAULT_BUDGET),
+        b => b,
+    }
+}
+
+/// The budget the environment sets, if any; an error names the variable and its value.
+pub fn budget_from_env() -> Result<Option<u64>> {
+    match std::env::var(ENV) {
+        Ok(s) => parse_size(&s)
+            .map(Some)
+            .map_err(|e| Error::input(format!("{ENV}={}: {e}", crate::text::sanitize(&s)))),
+        Err(_) => Ok(None),
+    }
+}
+
+/// Parses a size: bytes, or a number with a unit `K`, `M`, `G`, `T` (powers of 1024; `KiB`,
+/// `MB`, `GiB`... are read the same way).
+pub fn parse_size(s: &str) -> Result<u64> {
+    let t = s.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let shift = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 0,
+        "k" | "kb" | "kib" => 10,
+        "m" | "mb" | "mib" => 20,
+        "g" | "gb" | "gib" => 30,
+        "t" | "tb" | "tib" => 40,
+        other => {
+            return Err(Error::input(format!(
+                "memory size {t:?}: unknown unit {other:?} (use K, M, G or T)"
+            )));
+        }
+    };
+    let x: f64 = num
+        .parse()
+        .map_err(|_| Error::input(format!("memory size {t:?}: not a number")))?;
+    let bytes = x * (1u64 << shift) as f64;
+    if !(1.0..1.8e19).contains(&bytes) {
+        return Err(Error::input(format!(
+            "memory size {t:?}: out of range (1 byte to 16 EiB)"
+        )));
+    }
+    Ok(bytes as u64)
+}
+
+/// A byte count for people: `1.5 GiB`, `17.5 MiB`, `512 B`.
+pub fn human(bytes: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut x = bytes as f64;
+    let mut u = 0;
+    while x >= 1024.0 && u + 1 < UNITS.len() {
+        x /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{bytes} B")
+    } else {
+        format!("{x:.1} {}", UNITS[u])
+    }
+}
+
+/// Refuses work that needs more than the budget: `what` needs `bytes`.
+pub fn require(what: &str, bytes: u64) -> Result<()> {
+    let b = budget();
+    if bytes > b {
+        return Err(Error::input(format!(
+            "{what} needs about {} of memory, more than the budget of {} (raise it with \
+             --max-memory or {ENV})",
+            human(bytes),
+            human(b)
+        )));
+    }
+    Ok(())
+}
+
+/// Bytes of one table of `cells` × `channels` in memory: f32 samples and a validity flag.
+pub fn table_bytes(cells: usize, channels: usize) -> u64 {
+    (cells as u64).saturating_mul((channels as u64).saturating_mul(4).saturating_add(1))
+}
+
+/// Checks that a command may hold [`WORKING_COPIES`] of a `cells` × `channels` table.
+pub fn require_table(what: &str, cells: usize, channels: usize) -> Result<()> {
+    require(
+        what,
+        table_bytes(cells, channels).saturating_mul(WORKING_COPIES),
+    )
+}
+
+/// Bytes of `n` direction pairs held with their values: two f64 unit vectors (48 bytes)
+/// and the values of a candidate and a reference at 3 channels in f64 (48 bytes).
+pub fn pair_bytes(n: usize) -> u64 {
+    (n as u64).saturating_mul(96)
+}
+
+/// `vec![value; n]` that returns an error naming `what` instead of aborting when the
+/// allocator refuses (the budget checks come first; this catches what they do not count).
+pub fn try_filled<T: Clone>(n: usize, value: T, what: &str) -> Result<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| {
+        Error::Failure(format!(
+            "{what}: could not allocate {}",
+            human((n as u64).saturating_mul(std::mem::size_of::<T>() as u64))
+        ))
+    })?;
+    v.resize(n, value);
+    Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_with_binary_units() {
+        assert_eq!(parse_size("512").unwrap(), 512);
+        assert_eq!(parse_size("64K").unwrap(), 64 << 10);
+        assert_eq!(parse_size("2GiB").unwrap(), 2 << 30);
+        assert_eq!(parse_size("1.5 G").unwrap(), 3 << 29);
+        assert!(parse_size("0").is_err());
+        assert!(parse_size("-1G").is_err());
+        assert!(parse_size("2 parsecs").is_err());
+        assert!(parse_size("99999999T").is_err());
+    }
+
+    #[test]
+    fn human_sizes_round_to_one_decimal() {
+        assert_eq!(human(512), "512 B");
+        assert_eq!(human(3 << 29), "1.5 GiB");
+    }
+
+    #[test]
+    fn table_bytes_saturate_instead_of_wrapping() {
+        assert_eq!(table_bytes(10, 3), 130);
+        assert_eq!(table_bytes(usize::MAX, 4096), u64::MAX);
+    }
+}

@@ -1,0 +1,887 @@
+//! Hostile files, output targets and interrupted runs (issue 20). Every case is a command a
+//! careless user or an attacker could run; each must exit 0, 1 or 2 as documented (never 101
+//! or 134), refuse up front what would exhaust memory, and never lose or corrupt an output.
+//! docs/robustness.md lists every test here with the behaviour it pins down.
+#![cfg(target_os = "linux")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_brdfpack");
+
+fn brdfpack() -> Command {
+    Command::new(BIN)
+}
+
+fn run(dir: &Path, args: &[&str]) -> Output {
+    brdfpack().current_dir(dir).args(args).output().unwrap()
+}
+
+/// Runs the tool with its address space capped (`ulimit -v`, KiB), so that an allocation the
+/// budget should have refused fails fast instead of swapping.
+fn run_capped(dir: &Path, kib: u64, args: &[&str]) -> Output {
+    let mut cmd = Command::new("sh");
+    cmd.current_dir(dir)
+        .arg("-c")
+        .arg(format!("ulimit -v {kib} && exec \"$0\" \"$@\""))
+        .arg(BIN)
+        .args(args);
+    cmd.output().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Asserts exit 2 with one `brdfpack:` line containing every `needles`.
+fn assert_refused(o: &Output, needles: &[&str]) {
+    let e = stderr(o);
+    assert_eq!(o.status.code(), Some(2), "stderr: {e}");
+    assert!(e.starts_with("brdfpack: "), "{e}");
+    assert_eq!(e.lines().count(), 1, "{e}");
+    for n in needles {
+        assert!(e.contains(n), "missing {n:?} in: {e}");
+    }
+}
+
+fn tabulate(dir: &Path, name: &str, spec: &str, grid: &str, extra: &[&str]) -> PathBuf {
+    let p = dir.join(name);
+    let mut args = vec!["tabulate", spec, "--grid", grid, "-o", name];
+    args.extend_from_slice(extra);
+    let o = run(dir, &args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    p
+}
+
+/// A native file's sections (tag, payload), in order.
+fn sections(bytes: &[u8]) -> Vec<([u8; 4], Vec<u8>)> {
+    let count = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let mut pos = 20;
+    let mut out = Vec::new();
+    for _ in 0..count {
+        let tag: [u8; 4] = bytes[pos..pos + 4].try_into().unwrap();
+        let len = u64::from_le_bytes(bytes[pos + 4..pos + 12].try_into().unwrap()) as usize;
+        out.push((tag, bytes[pos + 16..pos + 16 + len].to_vec()));
+        pos += 16 + len;
+    }
+    out
+}
+
+/// A native file with valid checksums from its sections (the preamble copied from `like`).
+fn assemble(like: &[u8], secs: &[([u8; 4], Vec<u8>)]) -> Vec<u8> {
+    let mut out = like[..16].to_vec();
+    out[12..16].copy_from_slice(&(secs.len() as u32).to_le_bytes());
+    let pre = crc32fast::hash(&out);
+    out.extend_from_slice(&pre.to_le_bytes());
+    for (tag, p) in secs {
+        out.extend_from_slice(tag);
+        out.extend_from_slice(&(p.len() as u64).to_le_bytes());
+        out.extend_from_slice(&crc32fast::hash(p).to_le_bytes());
+        out.extend_from_slice(p);
+    }
+    out
+}
+
+/// A copy of the small native table `base` whose header is rewritten by `edit` (checksums
+/// recomputed, so only the declared sizes lie).
+fn lying_native(base: &[u8], edit: impl Fn(&mut serde_json::Value)) -> Vec<u8> {
+    let mut secs = sections(base);
+    let mut head: serde_json::Value = serde_json::from_slice(&secs[0].1).unwrap();
+    edit(&mut head);
+    secs[0].1 = serde_json::to_vec(&head).unwrap();
+    assemble(base, &secs)
+}
+
+fn set_axes(h: &mut serde_json::Value, n: &[u64]) {
+    for (a, &k) in h["grid"]["axes"].as_array_mut().unwrap().iter_mut().zip(n) {
+        a["n"] = k.into();
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// 1. Aborts and memory/time bombs
+
+#[test]
+fn native_header_declaring_4096_channels_on_256_cubed_is_refused_with_its_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = tabulate(dir.path(), "t.bpk", "lambert", "halfdiff3:4", &[]);
+    let bomb = lying_native(&std::fs::read(t).unwrap(), |h| {
+        set_axes(h, &[256, 256, 256]);
+        let names: Vec<String> = (0..4096).map(|i| format!("c{i}")).collect();
+        h["channels"] = serde_json::json!({ "names": names });
+    });
+    std::fs::write(dir.path().join("bomb.bpk"), &bomb).unwrap();
+    for cmd in [
+        &["inspect", "bomb.bpk"][..],
+        &["eval", "bomb.bpk", "--wi", "0,0,1", "--wo", "0,0,1"],
+    ] {
+        let o = run_capped(dir.path(), 1 << 20, cmd);
+        assert_refused(&o, &["bomb.bpk", "needs about", "GiB", "--max-memory"]);
+    }
+}
+
+#[test]
+fn native_header_declaring_2_pow_31_cells_is_refused_before_the_mask() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = tabulate(dir.path(), "t.bpk", "lambert", "halfdiff3:4", &[]);
+    let bomb = lying_native(&std::fs::read(t).unwrap(), |h| {
+        set_axes(h, &[1024, 1024, 2048])
+    });
+    std::fs::write(dir.path().join("bomb.bpk"), &bomb).unwrap();
+    let start = std::time::Instant::now();
+    let o = run_capped(dir.path(), 1 << 20, &["inspect", "bomb.bpk"]);
+    assert_refused(&o, &["needs about", "2.0 GiB"]);
+    assert!(start.elapsed().as_secs() < 5, "{:?}", start.elapsed());
+}
+
+#[test]
+fn a_small_zstd_payload_that_expands_past_the_budget_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    // 64×64×128 cells, 1 channel of zeros: 2 MiB of f32 in a few hundred bytes of zstd,
+    // whose decoding (table + scratch, 5 bytes a cell each) needs 5 MiB.
+    tabulate(
+        dir.path(),
+        "z.bpk",
+        "lambert:albedo=0",
+        "halfdiff3:64x64x128",
+        &["--codec", "zstd-f32"],
+    );
+    let size = std::fs::metadata(dir.path().join("z.bpk")).unwrap().len();
+    assert!(size < 4 << 10, "{size}");
+    let o = run(dir.path(), &["--max-memory", "4M", "inspect", "z.bpk"]);
+    assert_refused(&o, &["z.bpk", "needs about 5.0 MiB", "budget of 4.0 MiB"]);
+    // The same file within a budget that holds it is read.
+    let o = run(dir.path(), &["--max-memory", "64M", "inspect", "z.bpk"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn every_reader_checks_the_budget_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    tabulate(
+        dir.path(),
+        "t.exr",
+        "ggx:alpha=0.3,fresnel=au",
+        "halfdiff3:16",
+        &["--format", "exr"],
+    );
+    tabulate(
+        dir.path(),
+        "t.binary",
+        "ggx:alpha=0.3,fresnel=au",
+        "merl",
+        &["--format", "merl"],
+    );
+    for (f, what) in [("t.exr", "EXR pixels"), ("t.binary", "MERL data")] {
+        let o = brdfpack()
+            .current_dir(dir.path())
+            .env(
+                "BRDFPACK_MAX_MEMORY",
+                if f == "t.exr" { "64K" } else { "36M" },
+            )
+            .args(["inspect", f])
+            .output()
+            .unwrap();
+        assert_refused(&o, &[f, what, "needs about", "BRDFPACK_MAX_MEMORY"]);
+    }
+    let o = brdfpack()
+        .env("BRDFPACK_MAX_MEMORY", "lots")
+        .args(["models"])
+        .output()
+        .unwrap();
+    assert_refused(&o, &["BRDFPACK_MAX_MEMORY=lots", "unknown unit"]);
+}
+
+#[test]
+fn grids_and_counts_inside_the_limits_are_refused_up_front_when_too_big() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases: &[(&[&str], &[&str])] = &[
+        (
+            &[
+                "tabulate",
+                "lambert",
+                "--grid",
+                "spherical4:215",
+                "-o",
+                "x.bpk",
+            ],
+            &["spherical4", "needs about"],
+        ),
+        (
+            &[
+                "convert",
+                "lambert",
+                "--grid",
+                "spherical4:215",
+                "-o",
+                "x.bpk",
+            ],
+            &["needs about"],
+        ),
+        (
+            &[
+                "compress",
+                "lambert",
+                "--grid",
+                "spherical4:215",
+                "-o",
+                "x.bpk",
+            ],
+            &["needs about"],
+        ),
+        (
+            &["pack", "lambert", "--grid", "spherical4:215", "-o", "x.bpk"],
+            &["needs about"],
+        ),
+        (
+            &[
+                "compress",
+                "lambert",
+                "--samples",
+                "4000000000",
+                "-o",
+                "x.bpk",
+            ],
+            &["--samples 4000000000"],
+        ),
+        (
+            &[
+                "compress",
+                "lambert",
+                "--samples",
+                "50000000",
+                "-o",
+                "x.bpk",
+            ],
+            &["--samples 50000000", "needs about"],
+        ),
+        (
+            &["bench", "--lookup-only", "--pairs", "4000000000"],
+            &["--pairs 4000000000"],
+        ),
+        (
+            &["bench", "--lookup-only", "--threads", "100000"],
+            &["--threads 100000", "1024"],
+        ),
+    ];
+    for (args, needles) in cases {
+        let start = std::time::Instant::now();
+        let o = run_capped(dir.path(), 1 << 20, args);
+        assert_refused(&o, needles);
+        assert!(
+            start.elapsed().as_secs() < 5,
+            "{args:?}: {:?}",
+            start.elapsed()
+        );
+        assert!(!dir.path().join("x.bpk").exists(), "{args:?}");
+    }
+}
+
+#[test]
+fn endless_and_random_devices_are_refused_after_a_sniff() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, needles) in [
+        (
+            &["inspect", "/dev/zero"][..],
+            &["/dev/zero", "first bytes"][..],
+        ),
+        (
+            &["eval", "/dev/urandom", "--wi", "0,0,1", "--wo", "0,0,1"],
+            &["/dev/urandom", "first bytes"],
+        ),
+        (&["inspect", "/tmp"], &["/tmp", "directory"]),
+    ] {
+        let o = run_capped(dir.path(), 1 << 19, args);
+        assert_refused(&o, needles);
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// 2. Output targets
+
+fn file_bytes_of_small_table(dir: &Path) -> Vec<u8> {
+    std::fs::read(tabulate(dir, "ref.bpk", "lambert", "halfdiff3:4", &[])).unwrap()
+}
+
+fn temps_in(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect()
+}
+
+#[test]
+fn a_fifo_target_is_written_in_place_and_stays_a_fifo() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    let want = file_bytes_of_small_table(dir.path());
+    assert!(
+        Command::new("mkfifo")
+            .arg(dir.path().join("pipe"))
+            .status()
+            .unwrap()
+            .success()
+    );
+    let o = Command::new("sh")
+        .current_dir(dir.path())
+        .arg("-c")
+        .arg("timeout 20 cat pipe > got & r=$!; \"$0\" tabulate lambert --grid halfdiff3:4 --format native -o pipe; s=$?; wait $r; exit $s")
+        .arg(BIN)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        std::fs::metadata(dir.path().join("pipe"))
+            .unwrap()
+            .file_type()
+            .is_fifo()
+    );
+    assert_eq!(std::fs::read(dir.path().join("got")).unwrap(), want);
+}
+
+#[test]
+fn descriptor_names_are_written_in_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let want = file_bytes_of_small_table(dir.path());
+    for target in ["/dev/fd/1", "/proc/self/fd/1"] {
+        let o = run(
+            dir.path(),
+            &[
+                "tabulate",
+                "lambert",
+                "--grid",
+                "halfdiff3:4",
+                "--format",
+                "native",
+                "-o",
+                target,
+            ],
+        );
+        assert!(o.status.success(), "{target}: {}", stderr(&o));
+        assert_eq!(o.stdout, want, "{target}");
+    }
+    // stdout redirected to a file: written through the descriptor, the file is not replaced.
+    let f = std::fs::File::create(dir.path().join("redirected")).unwrap();
+    let o = brdfpack()
+        .current_dir(dir.path())
+        .args([
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "--format",
+            "native",
+            "-o",
+            "/dev/fd/1",
+        ])
+        .stdout(f)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read(dir.path().join("redirected")).unwrap(), want);
+    assert!(temps_in(dir.path()).is_empty());
+}
+
+#[test]
+fn symlinks_are_followed_and_permissions_kept() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let want = file_bytes_of_small_table(dir.path());
+    let real = dir.path().join("real.bpk");
+    std::fs::write(&real, b"old").unwrap();
+    std::fs::set_permissions(&real, std::fs::Permissions::from_mode(0o600)).unwrap();
+    std::os::unix::fs::symlink("real.bpk", dir.path().join("link.bpk")).unwrap();
+    let o = run(
+        dir.path(),
+        &[
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "-o",
+            "link.bpk",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let link = std::fs::symlink_metadata(dir.path().join("link.bpk")).unwrap();
+    assert!(link.file_type().is_symlink());
+    assert_eq!(std::fs::read(&real).unwrap(), want);
+    assert_eq!(
+        std::fs::metadata(&real).unwrap().permissions().mode() & 0o777,
+        0o600
+    );
+    // A dangling link creates its target.
+    std::os::unix::fs::symlink("new.bpk", dir.path().join("dangling.bpk")).unwrap();
+    let o = run(
+        dir.path(),
+        &[
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "-o",
+            "dangling.bpk",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read(dir.path().join("new.bpk")).unwrap(), want);
+    assert!(temps_in(dir.path()).is_empty());
+}
+
+#[test]
+fn directories_and_long_names_as_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("somedir")).unwrap();
+    let o = run(
+        dir.path(),
+        &[
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "--format",
+            "native",
+            "-o",
+            "somedir",
+        ],
+    );
+    assert_refused(&o, &["somedir", "is a directory"]);
+    let o = run(
+        dir.path(),
+        &[
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "--format",
+            "native",
+            "-o",
+            "newdir/",
+        ],
+    );
+    assert_refused(&o, &["newdir/", "ends with /"]);
+    // A 250-byte name is a valid name; its temporary name must fit too.
+    let long = format!("{}.bpk", "n".repeat(246));
+    let o = run(
+        dir.path(),
+        &["tabulate", "lambert", "--grid", "halfdiff3:4", "-o", &long],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join(&long).is_file());
+    let too_long = format!("{}.bpk", "n".repeat(252));
+    let o = run(
+        dir.path(),
+        &[
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "-o",
+            &too_long,
+        ],
+    );
+    assert_refused(&o, &["File name too long"]);
+}
+
+#[test]
+fn a_signal_during_the_write_removes_the_temporary_file() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("out.bpk"), b"previous").unwrap();
+    // SIGXFSZ (default action: terminate) arrives mid-write at the file-size limit, like
+    // SIGINT/SIGTERM/SIGHUP would; the handler removes the temporary file and re-raises.
+    let o = Command::new("sh")
+        .current_dir(dir.path())
+        .arg("-c")
+        .arg("ulimit -f 16 && exec \"$0\" tabulate ggx:alpha=0.3,fresnel=au --grid halfdiff3:24x24x48 --codec zstd-f32:level=1 -o out.bpk")
+        .arg(BIN)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.signal(), Some(25), "{:?} {}", o.status, stderr(&o));
+    assert_eq!(
+        std::fs::read(dir.path().join("out.bpk")).unwrap(),
+        b"previous"
+    );
+    assert!(
+        temps_in(dir.path()).is_empty(),
+        "{:?}",
+        temps_in(dir.path())
+    );
+}
+
+#[test]
+fn leftover_temporary_files_never_block_a_run() {
+    let dir = tempfile::tempdir().unwrap();
+    // A container where the tool is PID 1 on every run: leftovers of killed runs in the
+    // old naming (`.NAME.PID-N.tmp`) used to make every later run fail with "File exists".
+    let pid1 = Command::new("unshare")
+        .args(["--pid", "--fork", "true"])
+        .status();
+    if !pid1.is_ok_and(|s| s.success()) {
+        println!("skipped: `unshare --pid --fork` is not available (needs root)");
+        return;
+    }
+    std::fs::write(dir.path().join(".out.bpk.1-0.tmp"), b"x").unwrap();
+    std::fs::write(dir.path().join(".out.bpk.2-0.tmp"), b"x").unwrap();
+    let o = Command::new("unshare")
+        .current_dir(dir.path())
+        .args([
+            "--pid",
+            "--fork",
+            BIN,
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "-o",
+            "out.bpk",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("out.bpk").is_file());
+    assert_eq!(temps_in(dir.path()).len(), 2);
+}
+
+#[test]
+fn a_failed_bound_never_replaces_the_output() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("out.bpk"), b"previous").unwrap();
+    let o = run(
+        dir.path(),
+        &[
+            "pack",
+            "ggx:alpha=0.3",
+            "--grid",
+            "halfdiff3:8",
+            "--codec",
+            "f16",
+            "--max-rmse",
+            "1e-30",
+            "-o",
+            "out.bpk",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("not written"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(dir.path().join("out.bpk")).unwrap(),
+        b"previous"
+    );
+    assert!(temps_in(dir.path()).is_empty());
+}
+
+// ---------------------------------------------------------------------------------------
+// 3. The stored domain
+
+/// Counts the MERL invalid marker (a negative stored value) in the red channel.
+fn merl_invalid_bins(bytes: &[u8]) -> usize {
+    let n: usize = (0..3)
+        .map(|k| i32::from_le_bytes(bytes[4 * k..4 * k + 4].try_into().unwrap()) as usize)
+        .product();
+    bytes[12..12 + 8 * n]
+        .chunks_exact(8)
+        .filter(|b| f64::from_le_bytes((*b).try_into().unwrap()) < 0.0)
+        .count()
+}
+
+#[test]
+fn cells_beyond_theta_max_are_invalid_after_regridding_in_every_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    tabulate(
+        d,
+        "t60.bpk",
+        "ggx:alpha=0.3,fresnel=au",
+        "halfdiff3:16,theta-max=60",
+        &[],
+    );
+    tabulate(
+        d,
+        "t90.bpk",
+        "ggx:alpha=0.3,fresnel=au",
+        "halfdiff3:16",
+        &[],
+    );
+    for t in ["t60", "t90"] {
+        let o = run(
+            d,
+            &[
+                "convert",
+                &format!("{t}.bpk"),
+                "--grid",
+                "merl",
+                "--format",
+                "merl",
+                "-o",
+                &format!("{t}.binary"),
+            ],
+        );
+        assert!(o.status.success(), "{}", stderr(&o));
+        let o = run(
+            d,
+            &[
+                "convert",
+                &format!("{t}.bpk"),
+                "--grid",
+                "halfdiff3:16",
+                "-o",
+                &format!("{t}-full.bpk"),
+            ],
+        );
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let full = merl_invalid_bins(&std::fs::read(d.join("t90.binary")).unwrap());
+    let limited = merl_invalid_bins(&std::fs::read(d.join("t60.binary")).unwrap());
+    // The hemisphere's horizon bins are invalid either way; beyond 60° adds ~515k more.
+    assert!(limited > full + 400_000, "{limited} vs {full}");
+    // A full-hemisphere native grid keeps the beyond-θmax cells invalid too.
+    let valid_of = |f: &str| -> u64 {
+        let o = run(d, &["inspect", f, "--json"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["valid_cells"].as_u64().unwrap_or_else(|| panic!("{v}"))
+    };
+    assert!(valid_of("t60-full.bpk") < valid_of("t90-full.bpk") * 3 / 4);
+}
+
+#[test]
+fn eval_beyond_theta_max_is_refused_unless_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    tabulate(
+        d,
+        "t60.bpk",
+        "ggx:alpha=0.3,fresnel=au",
+        "halfdiff3:16,theta-max=60",
+        &[],
+    );
+    let o = run(
+        d,
+        &["eval", "t60.bpk", "--wi-deg", "70,0", "--wo-deg", "10,0"],
+    );
+    assert_refused(
+        &o,
+        &["outside the stored domain θ ≤ 60°", "--outside-domain-zero"],
+    );
+    assert!(o.stdout.is_empty());
+    let o = run(
+        d,
+        &[
+            "eval",
+            "t60.bpk",
+            "--wi-deg",
+            "70,0",
+            "--wo-deg",
+            "10,0",
+            "--outside-domain-zero",
+        ],
+    );
+    assert_eq!(String::from_utf8_lossy(&o.stdout), "0.0 0.0 0.0\n");
+    let o = run(
+        d,
+        &["eval", "t60.bpk", "--wi-deg", "30,0", "--wo-deg", "10,0"],
+    );
+    assert!(o.status.success());
+    let v: Vec<f64> = String::from_utf8_lossy(&o.stdout)
+        .split_whitespace()
+        .map(|x| x.parse().unwrap())
+        .collect();
+    assert!(v.iter().all(|&x| x > 0.01), "{v:?}");
+    let o = run(
+        d,
+        &["check", "t60.bpk", "--against", "ggx:alpha=0.3,fresnel=au"],
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("domain: θi, θo ≤ 60° only"), "{out}");
+}
+
+// ---------------------------------------------------------------------------------------
+// 4. Names, repeated keys and text from files
+
+#[test]
+fn a_model_spec_is_never_shadowed_by_a_file_of_that_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A table of albedo 0.2 named `lambert` in the working directory.
+    tabulate(
+        d,
+        "lambert",
+        "lambert:albedo=0.2",
+        "halfdiff3:4",
+        &["--format", "native"],
+    );
+    let value = |src: &str| -> f64 {
+        let o = run(d, &["eval", src, "--wi", "0,0,1", "--wo", "0,0,1"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).trim().parse().unwrap()
+    };
+    let pi = std::f64::consts::PI;
+    assert!(
+        (value("lambert") - 0.5 / pi).abs() < 1e-12,
+        "the model (default albedo 0.5)"
+    );
+    assert!((value("./lambert") - 0.2 / pi).abs() < 1e-6, "the file");
+}
+
+#[test]
+fn repeated_keys_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = run(
+        d,
+        &[
+            "eval",
+            r#"{"model":"lambert","albedo":0.5,"albedo":0.9}"#,
+            "--wi",
+            "0,0,1",
+            "--wo",
+            "0,0,1",
+        ],
+    );
+    assert_refused(&o, &["\"albedo\" appears twice"]);
+    std::fs::write(
+        d.join("m.json"),
+        r#"{"model":"lambert","albedo":0.5,"albedo":0.9}"#,
+    )
+    .unwrap();
+    let o = run(d, &["eval", "@m.json", "--wi", "0,0,1", "--wo", "0,0,1"]);
+    assert_refused(&o, &["m.json", "appears twice"]);
+    let o = run(
+        d,
+        &[
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "--codec",
+            "f16:curve=log,curve=linear",
+            "-o",
+            "a.bpk",
+        ],
+    );
+    assert_refused(&o, &["\"curve\" is given twice"]);
+    let o = run(
+        d,
+        &[
+            "pack",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "--max-error",
+            "log_rmse=0.1,log_rmse=0.2",
+            "-o",
+            "a.bpk",
+        ],
+    );
+    assert_refused(&o, &["log_rmse is given twice"]);
+    // A native header with a repeated key (checksums valid).
+    let t = tabulate(d, "t.bpk", "lambert", "halfdiff3:4", &[]);
+    let base = std::fs::read(t).unwrap();
+    let mut secs = sections(&base);
+    let head = String::from_utf8(secs[0].1.clone()).unwrap();
+    secs[0].1 = head.replacen('{', r#"{"valid_cells":1,"#, 1).into_bytes();
+    std::fs::write(d.join("dup.bpk"), assemble(&base, &secs)).unwrap();
+    let o = run(d, &["inspect", "dup.bpk"]);
+    assert_refused(
+        &o,
+        &["dup.bpk", "header JSON", "\"valid_cells\" appears twice"],
+    );
+    assert!(!d.join("a.bpk").exists());
+}
+
+#[test]
+fn terminal_controls_in_files_are_escaped() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let t = tabulate(d, "t.bpk", "lambert", "halfdiff3:4", &[]);
+    let base = std::fs::read(t).unwrap();
+    let bomb = lying_native(&base, |h| {
+        h["provenance"]["source"] = "\u{1b}[2J\u{1b}[Hverified: OK\r".into();
+        h["channels"] = serde_json::json!({ "names": ["\u{1b}]0;pwned\u{7}"] });
+    });
+    std::fs::write(d.join("esc.bpk"), bomb).unwrap();
+    for args in [
+        &["inspect", "esc.bpk"][..],
+        &[
+            "eval", "esc.bpk", "--format", "csv", "--wi", "0,0,1", "--wo", "0,0,1",
+        ],
+    ] {
+        let o = run(d, args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            !out.contains('\u{1b}') && !out.contains('\r') && !out.contains('\u{7}'),
+            "{out:?}"
+        );
+        assert!(out.contains("\\u{1b}"), "{out}");
+    }
+    // An error message quoting a huge spec stays one short line.
+    let spec = format!(
+        "{{\"model\":\"lambert\",\"x\":\"{}\u{1b}[2J\"}}",
+        "a".repeat(110_000)
+    );
+    let o = run(d, &["eval", &spec, "--wi", "0,0,1", "--wo", "0,0,1"]);
+    assert_eq!(o.status.code(), Some(2));
+    let e = stderr(&o);
+    assert!(e.len() < 3000 && !e.contains('\u{1b}'), "{} bytes", e.len());
+}
+
+#[test]
+fn eval_of_stdin_needs_its_pair_on_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let t = tabulate(d, "t.bpk", "lambert:albedo=0.5", "halfdiff3:4", &[]);
+    let o = brdfpack()
+        .args(["eval", "-"])
+        .stdin(std::fs::File::open(&t).unwrap())
+        .output()
+        .unwrap();
+    assert_refused(&o, &["eval -", "--wi"]);
+    let o = brdfpack()
+        .args(["eval", "-", "--wi", "0,0,1", "--wo", "0,0,1"])
+        .stdin(std::fs::File::open(&t).unwrap())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: f64 = String::from_utf8_lossy(&o.stdout).trim().parse().unwrap();
+    assert!((v - 0.5 / std::f64::consts::PI).abs() < 1e-6, "{v}");
+}
+
+#[test]
+fn input_at_fault_exits_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Lafortune lobes whose values overflow f32 storage.
+    let spec = r#"{"model":"lafortune","lobes":[{"cx":0,"cy":0,"cz":100,"n":20,"albedo":1e6}]}"#;
+    let o = run(
+        d,
+        &["tabulate", spec, "--grid", "halfdiff3:4", "-o", "x.bpk"],
+    );
+    assert_refused(&o, &["f32 storage cannot hold"]);
+    assert!(!d.join("x.bpk").exists());
+}
+
+#[test]
+fn rgb_is_never_compared_with_spectral_channel_by_channel() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    tabulate(
+        d,
+        "rgb.bpk",
+        r#"{"model":"lambert","albedo":[0.5,0.5,0.5]}"#,
+        "halfdiff3:4",
+        &[],
+    );
+    let spectral = r#"{"model":"lambert","albedo":[0.5,0.5,0.5],"wavelengths_nm":[450,550,650]}"#;
+    let o = run(d, &["check", "rgb.bpk", "--against", spectral]);
+    assert_refused(
+        &o,
+        &[
+            "not spectral (R,G,B)",
+            "spectral at [450.0, 550.0, 650.0] nm",
+            "--to-rgb",
+        ],
+    );
+}
