@@ -342,17 +342,7 @@ impl Control<'_> {
                     break;
                 }
             }
-            let d = mse(self.coefs, s, self.variant.deadzone);
-            let (spec, payload, e) = self.measure(s)?;
-            let meets = accepts(self.budget, &e);
-            self.trials.push(RateTrial {
-                variant: self.variant.describe(),
-                step: s,
-                bytes: payload.len(),
-                predicted_mse: d,
-                estimate: e.clone(),
-                meets,
-            });
+            let (d, spec, payload, e, meets) = self.trial(s)?;
             // Re-fit each metric's model with this decode.
             for ((name, _), fit) in bounds.iter().zip(fits.iter_mut()) {
                 let u = e.upper.get(name).unwrap_or(0.0);
@@ -388,22 +378,29 @@ impl Control<'_> {
             if s < s_min {
                 break;
             }
-            let d = mse(self.coefs, s, self.variant.deadzone);
-            let (spec, payload, e) = self.measure(s)?;
-            let meets = accepts(self.budget, &e);
-            self.trials.push(RateTrial {
-                variant: self.variant.describe(),
-                step: s,
-                bytes: payload.len(),
-                predicted_mse: d,
-                estimate: e.clone(),
-                meets,
-            });
+            let (_, spec, payload, e, meets) = self.trial(s)?;
             if meets {
                 best = Some((spec, payload, e));
             }
         }
         Ok(best)
+    }
+
+    /// [`Control::measure`] at step `s`, recorded in the trials with the step's predicted
+    /// mean squared error; returns (predicted MSE, spec, payload, estimate, accepted).
+    fn trial(&mut self, s: f64) -> Result<(f64, CodecSpec, Vec<u8>, Estimate, bool)> {
+        let d = mse(self.coefs, s, self.variant.deadzone);
+        let (spec, payload, e) = self.measure(s)?;
+        let meets = accepts(self.budget, &e);
+        self.trials.push(RateTrial {
+            variant: self.variant.describe(),
+            step: s,
+            bytes: payload.len(),
+            predicted_mse: d,
+            estimate: e.clone(),
+            meets,
+        });
+        Ok((d, spec, payload, e, meets))
     }
 
     /// Encodes at step `s`, decodes as a reader would and measures against the source.
