@@ -650,12 +650,12 @@ mod tests {
     fn log_error_is_the_spec_formula_for_non_negative_values_and_finite_below() {
         // ln(1 + g c) − ln(1 + f c) as metrics.md writes it, for f, g ≥ 0.
         for (f, g, c) in [
-            (0.5, 0.7, 0.3),
+            (0.5f64, 0.7f64, 0.3f64),
             (1e4, 2e4, 0.01),
             (0.0, 3.0, 1.0),
             (2.0, 2.0, 0.5),
         ] {
-            let want = (1.0 + g * c as f64).ln() - (1.0 + f * c as f64).ln();
+            let want = (1.0 + g * c).ln() - (1.0 + f * c).ln();
             assert!((log_error(f, g, c) - want).abs() <= 1e-15 * want.abs().max(1.0));
         }
         // A negative source value beyond −1/c: finite, the odd extension, and antisymmetric.
