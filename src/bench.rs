@@ -211,25 +211,9 @@ pub fn bench_codecs(quick: bool) -> Vec<&'static str> {
     }
 }
 
-/// A short name of a codec for tables and plots.
-pub fn codec_label(c: &CodecSpec) -> String {
-    serde_json::to_value(c)
-        .ok()
-        .and_then(|v| {
-            let o = v.as_object()?.clone();
-            let kind = o.get("kind")?.as_str()?.to_string();
-            let rest: Vec<String> = o
-                .iter()
-                .filter(|(k, _)| *k != "kind")
-                .map(|(k, v)| format!("{k}={v}"))
-                .collect();
-            Some(if rest.is_empty() {
-                kind
-            } else {
-                format!("{kind}({})", rest.join(","))
-            })
-        })
-        .unwrap_or_else(|| format!("{c:?}"))
+/// The family of a codec label (`dct`, `lossless`, `f16`, …): what a plot marker shows.
+pub fn codec_family(label: &str) -> &str {
+    label.split(':').next().unwrap_or(label)
 }
 
 /// The sources of the matrix: a diffuse, a glossy conductor, an anisotropic model, and the
@@ -384,9 +368,12 @@ pub fn run_matrix(
                 return Err(e);
             }
             for request in &codecs {
-                // Data-derived parameters (scales, ε, colour transform) are fitted per table.
+                // Data-derived parameters (scales, ε, colour transform) are fitted per table;
+                // rows and plots name the codec by the request as typed (`dct:step=0.03`),
+                // the fitted values being in the file's header.
+                let label = request.to_string();
                 let codec = CodecRequest::parse(request)?.resolve(&table)?;
-                let row = matrix_row(src, gspec, &table, &codec, &tab_t, &lookups, opts)?;
+                let row = matrix_row(src, gspec, &table, (&label, &codec), &tab_t, &lookups, opts)?;
                 progress(&row);
                 rows.push(row);
             }
@@ -399,7 +386,8 @@ fn matrix_row(
     src: &MatrixSource,
     gspec: &str,
     table: &Table,
-    codec: &CodecSpec,
+    // The codec as requested (the rows' label) and as resolved for this table.
+    (label, codec): (&str, &CodecSpec),
     tab_t: &Timing,
     lookups: &SampleSet,
     opts: &MatrixOptions,
@@ -439,7 +427,7 @@ fn matrix_row(
     Ok(MatrixRow {
         source: src.name.clone(),
         grid: gspec.to_string(),
-        codec: codec_label(codec),
+        codec: label.to_string(),
         cells,
         valid_cells: valid,
         channels: c,
@@ -641,7 +629,8 @@ pub fn to_markdown(machine: &Machine, speed: &[SpeedResult], rows: &[MatrixRow])
 }
 
 /// An SVG scatter plot (log–log) of `plot_error` against `x` of every row, one colour per
-/// source, each source's Pareto front drawn as a line through its (circled) points.
+/// source and one marker per codec family, each point labelled with its grid's dimensions, each
+/// source's Pareto front drawn as a line through its (circled) points.
 pub fn to_svg(
     rows: &[MatrixRow],
     x: impl Fn(&MatrixRow) -> f64,
@@ -699,6 +688,13 @@ pub fn to_svg(
             RGBColor(188, 189, 34),
             RGBColor(23, 190, 207),
         ];
+        let mut families: Vec<&str> = Vec::new();
+        for r in rows {
+            let f = codec_family(&r.codec);
+            if !families.contains(&f) {
+                families.push(f);
+            }
+        }
         let mut seen: Vec<&str> = Vec::new();
         for r in rows {
             if !seen.contains(&r.source.as_str()) {
@@ -725,11 +721,37 @@ pub fn to_svg(
                         .map(|p| Circle::new(p, 7, col.stroke_width(2))),
                 )
                 .map_err(|x| e(&x))?;
+            // Each point: its codec family's marker in the source's colour, and the grid's
+            // dimensions beside it, so a point says which file it is.
+            for (&i, p) in mine.iter().zip(series) {
+                let family = family_index(&families, codec_family(&rows[i].codec));
+                let label = grid_dims(&rows[i].grid).to_string();
+                draw_marker(chart.plotting_area(), p, family, col).map_err(|x| e(&x))?;
+                chart
+                    .draw_series(std::iter::once(
+                        EmptyElement::at(p)
+                            + Text::new(label, (6, -12), ("sans-serif", 10).into_font()),
+                    ))
+                    .map_err(|x| e(&x))?;
+            }
             chart
-                .draw_series(series.into_iter().map(|p| Circle::new(p, 4, col.filled())))
+                .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())
                 .map_err(|x| e(&x))?
                 .label(*n)
-                .legend(move |(x, y)| Circle::new((x + 10, y), 4, col.filled()));
+                .legend(move |(x, y)| {
+                    Rectangle::new([(x + 4, y - 4), (x + 14, y + 4)], col.filled())
+                });
+        }
+        // The codec families' markers, in black, along the bottom edge.
+        for (k, f) in families.iter().enumerate() {
+            let at = (90 + 130 * k as i32, 590);
+            draw_marker(&root, at, k, BLACK).map_err(|x| e(&x))?;
+            root.draw(&Text::new(
+                format!("codec {f}"),
+                (at.0 + 8, at.1 - 6),
+                ("sans-serif", 12).into_font(),
+            ))
+            .map_err(|x| e(&x))?;
         }
         chart
             .configure_series_labels()
@@ -740,6 +762,43 @@ pub fn to_svg(
         root.present().map_err(|x| e(&x))?;
     }
     Ok(svg)
+}
+
+/// The position of `family` in `families` (0 when absent, which the caller never asks).
+fn family_index(families: &[&str], family: &str) -> usize {
+    families.iter().position(|f| *f == family).unwrap_or(0)
+}
+
+/// The grid's dimensions from its spec (`halfdiff3:16x16x32,warp=…` → `16x16x32`; `merl`
+/// stays `merl`).
+fn grid_dims(spec: &str) -> &str {
+    let body = spec.split_once(':').map_or(spec, |(_, b)| b);
+    body.split(',').next().unwrap_or(body)
+}
+
+/// Draws the marker of codec family `family` at `at`: circle, triangle, square, cross, then
+/// the same hollow.
+fn draw_marker<DB: plotters::prelude::DrawingBackend, CT: plotters::coord::CoordTranslate>(
+    area: &plotters::prelude::DrawingArea<DB, CT>,
+    at: CT::From,
+    family: usize,
+    col: plotters::style::RGBColor,
+) -> std::result::Result<(), plotters::drawing::DrawingAreaErrorKind<DB::ErrorType>>
+where
+    CT::From: Clone,
+{
+    use plotters::prelude::*;
+    let style = if (family / 4).is_multiple_of(2) {
+        col.filled()
+    } else {
+        col.stroke_width(2)
+    };
+    match family % 4 {
+        0 => area.draw(&Circle::new(at, 4, style)),
+        1 => area.draw(&TriangleMarker::new(at, 5, style)),
+        2 => area.draw(&(EmptyElement::at(at) + Rectangle::new([(-4, -4), (4, 4)], style))),
+        _ => area.draw(&Cross::new(at, 4, col.stroke_width(2))),
+    }
 }
 
 #[cfg(test)]

@@ -74,12 +74,23 @@ fn quick_bench_writes_parseable_files() {
     assert_eq!(json["speed"].as_array().unwrap().len(), 2);
     let md = std::fs::read_to_string(dir.path().join("bench.md")).unwrap();
     assert!(md.contains("| source | grid | codec |"));
+    // Codecs are named by the request as typed, not by the resolved spec's JSON.
+    for request in brdfpack::bench::bench_codecs(true) {
+        assert!(md.contains(&format!("| {request} |")), "{request}: {md}");
+    }
+    assert!(!md.contains("\"kind\""), "{md}");
     for svg in ["error_vs_bytes.svg", "error_vs_lookup_time.svg"] {
         let text = std::fs::read_to_string(dir.path().join(svg)).unwrap();
         assert!(
             text.contains("<svg") && text.contains("Pareto front"),
             "{svg}"
         );
+        // Points are labelled by codec family (a legend entry each) and by grid.
+        for request in brdfpack::bench::bench_codecs(true) {
+            let family = brdfpack::bench::codec_family(request);
+            assert!(text.contains(&format!("codec {family}")), "{svg}: {family}");
+        }
+        assert!(text.contains("16x16x32"), "{svg}: grid label");
         assert_well_formed_xml(&text, svg);
     }
 }
