@@ -303,6 +303,24 @@ fn file_bytes_of_small_table(dir: &Path) -> Vec<u8> {
     std::fs::read(tabulate(dir, "ref.bpk", "lambert", "halfdiff3:4", &[])).unwrap()
 }
 
+/// `tabulate lambert --grid halfdiff3:4 --format native -o OUTPUT` in `dir`: the small table
+/// the output-target tests write (the same bytes as `file_bytes_of_small_table`'s `.bpk`).
+fn tabulate_small_to(dir: &Path, output: &str) -> Output {
+    run(
+        dir,
+        &[
+            "tabulate",
+            "lambert",
+            "--grid",
+            "halfdiff3:4",
+            "--format",
+            "native",
+            "-o",
+            output,
+        ],
+    )
+}
+
 fn temps_in(dir: &Path) -> Vec<String> {
     std::fs::read_dir(dir)
         .unwrap()
@@ -345,19 +363,7 @@ fn descriptor_names_are_written_in_place() {
     let dir = tempfile::tempdir().unwrap();
     let want = file_bytes_of_small_table(dir.path());
     for target in ["/dev/fd/1", "/proc/self/fd/1"] {
-        let o = run(
-            dir.path(),
-            &[
-                "tabulate",
-                "lambert",
-                "--grid",
-                "halfdiff3:4",
-                "--format",
-                "native",
-                "-o",
-                target,
-            ],
-        );
+        let o = tabulate_small_to(dir.path(), target);
         assert!(o.status.success(), "{target}: {}", stderr(&o));
         assert_eq!(o.stdout, want, "{target}");
     }
@@ -392,17 +398,7 @@ fn symlinks_are_followed_and_permissions_kept() {
     std::fs::write(&real, b"old").unwrap();
     std::fs::set_permissions(&real, std::fs::Permissions::from_mode(0o600)).unwrap();
     std::os::unix::fs::symlink("real.bpk", dir.path().join("link.bpk")).unwrap();
-    let o = run(
-        dir.path(),
-        &[
-            "tabulate",
-            "lambert",
-            "--grid",
-            "halfdiff3:4",
-            "-o",
-            "link.bpk",
-        ],
-    );
+    let o = tabulate_small_to(dir.path(), "link.bpk");
     assert!(o.status.success(), "{}", stderr(&o));
     let link = std::fs::symlink_metadata(dir.path().join("link.bpk")).unwrap();
     assert!(link.file_type().is_symlink());
@@ -413,17 +409,7 @@ fn symlinks_are_followed_and_permissions_kept() {
     );
     // A dangling link creates its target.
     std::os::unix::fs::symlink("new.bpk", dir.path().join("dangling.bpk")).unwrap();
-    let o = run(
-        dir.path(),
-        &[
-            "tabulate",
-            "lambert",
-            "--grid",
-            "halfdiff3:4",
-            "-o",
-            "dangling.bpk",
-        ],
-    );
+    let o = tabulate_small_to(dir.path(), "dangling.bpk");
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(std::fs::read(dir.path().join("new.bpk")).unwrap(), want);
     assert!(temps_in(dir.path()).is_empty());
@@ -433,33 +419,9 @@ fn symlinks_are_followed_and_permissions_kept() {
 fn directories_and_long_names_as_outputs() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir(dir.path().join("somedir")).unwrap();
-    let o = run(
-        dir.path(),
-        &[
-            "tabulate",
-            "lambert",
-            "--grid",
-            "halfdiff3:4",
-            "--format",
-            "native",
-            "-o",
-            "somedir",
-        ],
-    );
+    let o = tabulate_small_to(dir.path(), "somedir");
     assert_refused(&o, &["somedir", "is a directory"]);
-    let o = run(
-        dir.path(),
-        &[
-            "tabulate",
-            "lambert",
-            "--grid",
-            "halfdiff3:4",
-            "--format",
-            "native",
-            "-o",
-            "newdir/",
-        ],
-    );
+    let o = tabulate_small_to(dir.path(), "newdir/");
     assert_refused(&o, &["newdir/", "ends with /"]);
     // A 250-byte name is a valid name; its temporary name must fit too.
     let long = format!("{}.bpk", "n".repeat(246));

@@ -1,10 +1,10 @@
-//! The codec search: the smallest file meeting an error budget (`--max-error`).
+//! The older exhaustive codec search, kept for the figures of docs/compression.md that were
+//! measured with it (`tests/codec_figures.rs`); `pack` and `compress --max-error` use the
+//! rate control of [`super::rate`]. Its [`Evaluator`] also scores `compress --codec` files.
 //!
 //! Every candidate is really encoded, decoded by the same code that reads files, interpolated
 //! and measured with [`crate::check::metrics`] against a reference on the budget's sample set:
-//! the uncompressed table ([`search`]), or the source the table was tabulated from
-//! ([`search_against`], so that tabulation, interpolation and codec error are bounded
-//! together); the reported error is that measurement. Candidates: the DCT chain with the log
+//! the uncompressed table ([`search`]); the reported error is that measurement. Candidates: the DCT chain with the log
 //! curve (ε = 1e-3, 3e-3 and 1e-2 of each channel's mean) and KLT colour decorrelation, with the
 //! quantization step found by bisection in log(step) (error grows with step); the lossless
 //! chain when no lossy candidate meets the budget. Not candidates: the cosine weight
@@ -180,7 +180,7 @@ const LOCAL_BISECTIONS: usize = 6;
 
 /// The held-out set of a search on `set`: a `uniform` set gets the same size with the next
 /// seed; other sets have none.
-pub fn held_out_set(set: &SampleSet) -> Option<SampleSet> {
+fn held_out_set(set: &SampleSet) -> Option<SampleSet> {
     match set.seed {
         Some(seed) if set.name == "uniform" => {
             Some(SampleSet::uniform(set.pairs.len(), seed.wrapping_add(1)))
@@ -196,7 +196,7 @@ fn accepts(budget: &Budget, m: &Measured) -> bool {
 
 /// The search's acceptance rule on metrics: every bound × [`MARGIN`] on the search's set,
 /// every bound on the held-out set (when there is one).
-pub fn accepts_metrics(budget: &Budget, main: &Metrics, held: Option<&Metrics>) -> bool {
+fn accepts_metrics(budget: &Budget, main: &Metrics, held: Option<&Metrics>) -> bool {
     budget.margined().met_by(main) && held.is_none_or(|h| budget.met_by(h))
 }
 
@@ -333,7 +333,7 @@ pub fn search(table: &Table, budget: &Budget, set: &SampleSet, level: i32) -> Re
 /// table: for a table tabulated from a model, the budget then bounds tabulation,
 /// interpolation and codec error together. The bisections assume that error grows with the
 /// step, which holds above the floor of the table's own error ([`Evaluator::measure_uncompressed`]).
-pub fn search_against(
+fn search_against(
     table: &Table,
     reference: &dyn Brdf,
     budget: &Budget,
