@@ -2,7 +2,7 @@
 
 use crate::brdf::{Brdf, Channels};
 use crate::geometry::Vec3;
-use crate::grid::Grid;
+use crate::grid::{Grid, InterpWeight};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -59,6 +59,8 @@ pub struct Table {
     exact: Option<ExactValues>,
     /// `valid` packed as bits for batched lookups, built on first use.
     bits: BitsCache,
+    /// Every cell's cos θi · cos θo, built on the first lookup of a cosine-weighted grid.
+    cos: CosCache,
 }
 
 impl Table {
@@ -99,6 +101,7 @@ impl Table {
             valid,
             exact: None,
             bits: BitsCache::default(),
+            cos: CosCache::default(),
         })
     }
 
@@ -155,6 +158,13 @@ impl Table {
         self
     }
 
+    /// Sets what is interpolated between the samples ([`InterpWeight`]); the samples stay.
+    pub fn set_interp_weight(&mut self, weight: InterpWeight) {
+        if self.grid.weight() != weight {
+            self.grid = self.grid.clone().with_weight(weight);
+        }
+    }
+
     /// An all-invalid table of `grid` × `channels` (zeroed memory, filled by tabulation).
     pub(crate) fn zeroed(grid: Grid, channels: Channels) -> Table {
         let cells = grid.cells();
@@ -166,6 +176,7 @@ impl Table {
             provenance: Provenance::default(),
             exact: None,
             bits: BitsCache::default(),
+            cos: CosCache::default(),
         }
     }
 
@@ -177,6 +188,7 @@ impl Table {
         let c = channels.len();
         if self.grid != *grid {
             self.grid = grid.clone();
+            self.cos = CosCache::default();
         }
         if self.channels != *channels {
             self.channels = channels.clone();
@@ -231,7 +243,44 @@ impl Table {
             return;
         };
         let layout = Layout::new(&self.grid);
-        self.interpolate_masked(&t, interp, &layout, &self.valid[..], out);
+        match self.query_weight(wi, wo) {
+            QueryWeight::Plain => {
+                self.interpolate_masked(&t, interp, &layout, &self.valid[..], out, |_, w| w)
+            }
+            QueryWeight::Cosine { cells, inv_q } => {
+                self.interpolate_masked(&t, interp, &layout, &self.valid[..], out, |flat, w| {
+                    cosine_weight(w, cells[flat], inv_q)
+                })
+            }
+            QueryWeight::Horizon => {}
+        }
+    }
+
+    /// How a query's neighbours are weighted on this table's grid ([`InterpWeight`]).
+    #[inline]
+    fn query_weight(&self, wi: Vec3, wo: Vec3) -> QueryWeight<'_> {
+        match self.grid.weight() {
+            InterpWeight::None => QueryWeight::Plain,
+            InterpWeight::Cosine => {
+                let q = wi.z.max(0.0) * wo.z.max(0.0);
+                if q < MIN_COS_PRODUCT {
+                    QueryWeight::Horizon
+                } else {
+                    QueryWeight::Cosine {
+                        cells: self.cell_cos_products(),
+                        inv_q: 1.0 / q,
+                    }
+                }
+            }
+        }
+    }
+
+    /// cos θi · cos θo of every cell's sample pair (f32: the weights need no more, and a
+    /// 64⁴ grid's array stays at 67 MB), built once.
+    fn cell_cos_products(&self) -> &[f32] {
+        self.cos
+            .0
+            .get_or_init(|| self.grid.cos_products().iter().map(|&c| c as f32).collect())
     }
 
     /// The pair's continuous index along every axis (storage order); `None` outside the
@@ -252,6 +301,8 @@ impl Table {
     /// has zeroed, reading validity from `mask` (the table's own flags or a bitset of them
     /// that stays in cache).
     #[inline(always)]
+    /// `weigh(flat, w)` turns a neighbour's interpolation weight into the factor its value
+    /// enters the sum with (the identity, or the cosine weighting of [`InterpWeight`]).
     fn interpolate_masked<M: CellMask + ?Sized>(
         &self,
         t_in: &[f64; 4],
@@ -259,9 +310,11 @@ impl Table {
         layout: &Layout,
         mask: &M,
         out: &mut [f64],
+        weigh: impl Fn(usize, f64) -> f64,
     ) {
         let c = self.channels.len();
         let (wsum, tcont) = self.corners_masked(t_in, interp, layout, mask, |flat, w| {
+            let w = weigh(flat, w);
             for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
                 *o += w * v as f64;
             }
@@ -272,7 +325,13 @@ impl Table {
                 *o /= wsum;
             }
         } else if wsum == 0.0 {
-            self.hold_nearest_valid(&tcont[..layout.d], &layout.strides[..layout.d], out);
+            let d = layout.d;
+            if let Some(flat) = self.nearest_valid(&tcont[..d], &layout.strides[..d]) {
+                let w = weigh(flat, 1.0);
+                for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
+                    *o = w * v as f64;
+                }
+            }
         }
     }
 
@@ -346,20 +405,39 @@ impl Table {
                 let mut st = Stencil::default();
                 for &(wi, wo) in pairs {
                     let mut after = After::None;
-                    if let Some(t) = self.continuous_indices(wi, wo) {
+                    let weight = self.query_weight(wi, wo);
+                    let weigh = |flat: usize, w: f64| match &weight {
+                        QueryWeight::Cosine { cells, inv_q } => {
+                            cosine_weight(w, cells[flat], *inv_q)
+                        }
+                        _ => w,
+                    };
+                    let t = match weight {
+                        QueryWeight::Horizon => None,
+                        _ => self.continuous_indices(wi, wo),
+                    };
+                    if let Some(t) = t {
                         let (wsum, tcont) =
                             self.corners_masked(&t, interp, &layout, &self.valid[..], |flat, w| {
                                 st.cells.push(flat as u32);
-                                st.weights.push(w);
+                                st.weights.push(weigh(flat, w));
                             });
                         if wsum > 0.0 && wsum != 1.0 {
                             after = After::Divide(wsum);
                         } else if wsum == 0.0 {
                             let d = layout.d;
-                            after = match self.nearest_valid(&tcont[..d], &layout.strides[..d]) {
-                                Some(f) => After::Hold(f),
-                                None => After::None,
-                            };
+                            match self.nearest_valid(&tcont[..d], &layout.strides[..d]) {
+                                Some(f) if matches!(weight, QueryWeight::Plain) => {
+                                    after = After::Hold(f)
+                                }
+                                // The held value, scaled: one neighbour with its weight
+                                // (0 + w·v is w·v, as eval_into computes it).
+                                Some(f) => {
+                                    st.cells.push(f as u32);
+                                    st.weights.push(weigh(f, 1.0));
+                                }
+                                None => {}
+                            }
                         }
                     }
                     st.ends.push(st.cells.len());
@@ -381,20 +459,6 @@ impl Table {
             st.after.extend(p.after);
         }
         st
-    }
-
-    /// The query is above the horizon but every neighbouring sample is below it (a thin
-    /// sliver of the valid region near grazing on half/difference grids): hold the value of
-    /// the nearest valid sample rather than return a false 0. `out` stays 0 when there is
-    /// none within [`Self::FALLBACK_RADIUS`].
-    #[cold]
-    fn hold_nearest_valid(&self, t: &[f64], strides: &[usize], out: &mut [f64]) {
-        let c = self.channels.len();
-        if let Some(flat) = self.nearest_valid(t, strides) {
-            for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
-                *o = v as f64;
-            }
-        }
     }
 
     /// `valid` packed 64 cells to a word, built once per table (the MERL grid's 1.46 M flags
@@ -436,10 +500,14 @@ impl Table {
         );
         /// Pairs per parallel work item.
         const CHUNK: usize = 4096;
-        let indexer = HalfdiffIndexer::new(&self.grid).map(|mut ix| {
-            ix.use_avx2 &= simd;
-            ix
-        });
+        // Cosine-weighted grids take the per-pair path: the batched loops interpolate f.
+        let batched = self.grid.weight().is_none();
+        let indexer = HalfdiffIndexer::new(&self.grid)
+            .filter(|_| batched)
+            .map(|mut ix| {
+                ix.use_avx2 &= simd;
+                ix
+            });
         let avx2 = simd && avx2_available();
         let layout = Layout::new(&self.grid);
         let bits = match &indexer {
@@ -597,7 +665,7 @@ impl Table {
                 }
             } else {
                 // No valid neighbour: the generic path's fallback (rare, near the horizon).
-                self.interpolate_masked(&t[p], interp, layout, bits, o);
+                self.interpolate_masked(&t[p], interp, layout, bits, o, |_, w| w);
             }
         }
     }
@@ -665,7 +733,7 @@ impl Table {
                 o.copy_from_slice(&v[..3]);
             } else {
                 o.fill(0.0);
-                self.interpolate_masked(&t[p], interp, layout, bits, o);
+                self.interpolate_masked(&t[p], interp, layout, bits, o, |_, w| w);
             }
         }
     }
@@ -730,7 +798,7 @@ impl Table {
         for ((o, tk), &okk) in out.chunks_exact_mut(c).zip(t).zip(ok) {
             o.fill(0.0);
             if okk {
-                self.interpolate_masked(tk, interp, layout, bits, o);
+                self.interpolate_masked(tk, interp, layout, bits, o, |_, w| w);
             }
         }
     }
@@ -908,6 +976,42 @@ impl PartialEq for BitsCache {
     fn eq(&self, _: &BitsCache) -> bool {
         true
     }
+}
+
+/// Per-cell cos θi · cos θo of a cosine-weighted grid, built on first use; like
+/// [`BitsCache`], a cache that is not part of the table's value.
+#[derive(Clone, Debug, Default)]
+struct CosCache(std::sync::OnceLock<Vec<f32>>);
+
+impl PartialEq for CosCache {
+    fn eq(&self, _: &CosCache) -> bool {
+        true
+    }
+}
+
+/// Below this cos θi · cos θo a query on a cosine-weighted grid counts as on the horizon
+/// (0, like a query below it): 1/q stays far from overflow, and a direction that close to
+/// the horizon (both cosines ~1e-100) is not one a renderer asks about.
+const MIN_COS_PRODUCT: f64 = 1e-200;
+
+/// How one query weighs its neighbours ([`InterpWeight`]).
+enum QueryWeight<'a> {
+    Plain,
+    /// f·cos θi·cos θo interpolated, divided by the query's own product (1/q = `inv_q`).
+    Cosine {
+        cells: &'a [f32],
+        inv_q: f64,
+    },
+    /// A cosine-weighted grid queried on the horizon: 0.
+    Horizon,
+}
+
+/// The factor of a neighbour of interpolation weight `w` whose sample has cos θi·cos θo =
+/// `cell`, for a query of 1/(cos θi·cos θo) = `inv_q`; the one expression every path uses,
+/// so that eval and stencils agree bit for bit.
+#[inline(always)]
+fn cosine_weight(w: f64, cell: f32, inv_q: f64) -> f64 {
+    w * (cell as f64 * inv_q)
 }
 
 /// True when the CPU has AVX2 (the 3-D stencil loops need nothing else).
@@ -1301,6 +1405,94 @@ mod tests {
     use crate::math::PI;
     use crate::tabulate::{TabulateOptions, tabulate};
 
+    /// f = (1 + 0.5 wi·wo) / cos θo: finite f·cos θo at the horizon, as RGL files are
+    /// (docs/rgl.md).
+    struct HorizonGrowth(Channels);
+    impl Brdf for HorizonGrowth {
+        fn channels(&self) -> &Channels {
+            &self.0
+        }
+        fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
+            out[0] = if wi.z <= 0.0 || wo.z <= 0.0 {
+                0.0
+            } else {
+                (1.0 + 0.5 * wi.dot(wo)) / wo.z
+            };
+        }
+        fn is_isotropic(&self) -> bool {
+            true
+        }
+        fn describe(&self) -> String {
+            "horizon growth".into()
+        }
+    }
+
+    /// Interpolating f·cos θi·cos θo follows a 1/cos θo growth to the horizon, where f itself
+    /// cannot: within the last bin (θo ≥ 89.5° on 90 bins) plain interpolation misses by far
+    /// more than 50%, the weighted one stays within 1% (the rest is the bins' curvature).
+    #[test]
+    fn cosine_weight_follows_growth_at_the_horizon() {
+        let src = HorizonGrowth(Channels::default_for(1));
+        let plain = tabulate(
+            &src,
+            &parse_grid_spec("spherical3:90x90x180").unwrap(),
+            &TabulateOptions::default(),
+        )
+        .unwrap();
+        let mut weighted = plain.clone();
+        weighted.set_interp_weight(InterpWeight::Cosine);
+        assert_eq!(weighted.data(), plain.data(), "the samples stay");
+        let (mut f, mut a, mut b) = ([0.0], [0.0], [0.0]);
+        let (mut worst_plain, mut worst_weighted) = (0.0f64, 0.0f64);
+        for k in 0..200 {
+            let ti = (k as f64 * 0.4).to_radians();
+            let to = (89.5 + 0.4999 * (k as f64 + 0.5) / 200.0).to_radians();
+            let wi = Vec3::from_spherical(ti, 0.3);
+            let wo = Vec3::from_spherical(to, 0.3 + 0.013 * k as f64);
+            src.eval(wi, wo, &mut f);
+            plain.eval_into(wi, wo, Interp::Linear, &mut a);
+            weighted.eval_into(wi, wo, Interp::Linear, &mut b);
+            assert!(b[0].is_finite());
+            worst_plain = worst_plain.max((a[0] - f[0]).abs() / f[0]);
+            worst_weighted = worst_weighted.max((b[0] - f[0]).abs() / f[0]);
+        }
+        assert!(worst_plain > 0.5, "plain {worst_plain}");
+        assert!(worst_weighted < 0.01, "weighted {worst_weighted}");
+        // On the horizon itself, 0 (one-sided), never a division by 0.
+        weighted.eval_into(
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Interp::Linear,
+            &mut b,
+        );
+        assert_eq!(b[0], 0.0);
+    }
+
+    /// The grazing warp puts the last centred sample of n at 90°/(4n²) from the horizon, and
+    /// its continuous index inverts its samples.
+    #[test]
+    fn grazing_warp_is_dense_at_the_horizon() {
+        let g = parse_grid_spec("spherical3:90x90x180,warp=grazing/grazing/linear").unwrap();
+        let a = &g.axes()[0];
+        let last = a.sample(89).to_degrees();
+        assert!(
+            (90.0 - last - 90.0 / (4.0 * 90.0 * 90.0)).abs() < 1e-9,
+            "{last}"
+        );
+        for i in 0..90 {
+            assert!((a.continuous_index(a.sample(i)) - i as f64).abs() < 1e-9);
+        }
+        // Spec and description carry the warp and the weight.
+        let w = parse_grid_spec("halfdiff3:8,warp=sqrt/grazing/linear,weight=cosine").unwrap();
+        assert!(
+            w.describe().contains("sqrt/grazing/linear"),
+            "{}",
+            w.describe()
+        );
+        assert!(w.describe().contains("weight cosine"), "{}", w.describe());
+        assert_eq!(Grid::from_desc(&w.desc()).unwrap(), w);
+    }
+
     /// Smooth, reciprocal, anisotropic (via h.x²) test BRDF.
     struct Smooth(Channels, bool);
     impl Brdf for Smooth {
@@ -1616,6 +1808,31 @@ mod tests {
                 )
                 .unwrap(),
                 "spherical3 θ ≤ 60°",
+            ),
+            (
+                with_holes(&ggx, "halfdiff3:24x16x32,weight=cosine"),
+                "halfdiff3 cosine-weighted with invalid cells",
+            ),
+            (
+                tabulate(
+                    &Smooth(Channels::default_for(1), false),
+                    &parse_grid_spec(
+                        "spherical3:12x10x16,warp=grazing/grazing/linear,weight=cosine",
+                    )
+                    .unwrap(),
+                    &TabulateOptions::default(),
+                )
+                .unwrap(),
+                "spherical3 grazing warp, cosine-weighted",
+            ),
+            (
+                tabulate(
+                    &ggx,
+                    &parse_grid_spec("halfdiff3:16x12x20,warp=sqrt/grazing/linear").unwrap(),
+                    &TabulateOptions::default(),
+                )
+                .unwrap(),
+                "halfdiff3 grazing θd (generic per pair)",
             ),
         ];
         for (t, what) in &cases {

@@ -394,3 +394,93 @@ fn rgl_negative_values_pass_through_unless_clamped_and_inspect_counts_them() {
             "negative entries per channel: [0, 0, 1118]",
         ));
 }
+
+/// A cosine-weighted grid with the grazing warp (what `pack` picks for sources that grow
+/// toward the horizon) is a fact of the table: native and EXR files evaluate alike, and
+/// `inspect` names it.
+#[test]
+fn cosine_weighted_grids_keep_their_weight_in_every_table_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let bpk = dir.path().join("t.bpk");
+    let exr = dir.path().join("t.exr");
+    brdfpack()
+        .args([
+            "tabulate",
+            "ggx:alpha=0.3,fresnel=au",
+            "--grid",
+            "spherical3:16x16x32,warp=grazing/grazing/linear,weight=cosine",
+            "--codec",
+            "lossless",
+            "-o",
+        ])
+        .arg(&bpk)
+        .assert()
+        .success();
+    brdfpack()
+        .arg("convert")
+        .arg(&bpk)
+        .arg("-o")
+        .arg(&exr)
+        .assert()
+        .success();
+    let eval = |p: &std::path::Path| {
+        let out = brdfpack()
+            .arg("eval")
+            .arg(p)
+            .args(["--wi-deg", "30,0", "--wo-deg", "89.9,180"])
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let a = eval(&bpk);
+    assert!(!a.trim().is_empty());
+    assert_eq!(a, eval(&exr));
+    for p in [&bpk, &exr] {
+        brdfpack()
+            .arg("inspect")
+            .arg(p)
+            .assert()
+            .success()
+            .stdout(predicate::str::contains("weight cosine"))
+            .stdout(predicate::str::contains("grazing/grazing/linear"));
+    }
+}
+
+/// `pack` on a grid stored up to θmax measures the budget inside that domain only (the
+/// table holds nothing beyond it), as `check` does.
+#[test]
+fn pack_on_a_theta_max_grid_meets_the_budget_inside_the_domain() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("p.bpk");
+    brdfpack()
+        .args([
+            "pack",
+            "ggx:alpha=0.3,fresnel=au",
+            "--grid",
+            "halfdiff3:45x45x90,theta-max=60",
+            "--max-error",
+            "preview",
+            "-q",
+            "-o",
+        ])
+        .arg(&out)
+        .assert()
+        .success();
+    brdfpack()
+        .arg("check")
+        .arg(&out)
+        .args([
+            "--against",
+            "ggx:alpha=0.3,fresnel=au",
+            "--max-log-rmse",
+            "0.01",
+            "--max-p99-rel-core",
+            "0.2",
+            "--seed",
+            "77",
+        ])
+        .assert()
+        .success()
+        .stdout(predicate::str::contains("60"));
+}

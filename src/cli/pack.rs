@@ -51,7 +51,7 @@ pub struct PackArgs {
     #[arg(long, conflicts_with = "max_error")]
     pub codec: Option<String>,
     /// Error budget of the written file against the source, e.g.
-    /// `log_rmse=0.01,p99_rel_core=0.2`. Default `log_rmse=0.002,p99_rel_core=0.05`.
+    /// `log_rmse=0.01,p99_rel_core=0.2`, or `preview` (that one) or `production`. Default `log_rmse=0.002,p99_rel_core=0.05`.
     #[arg(long)]
     pub max_error: Option<String>,
     /// Time spent for a smaller file: `fast`, `default` or `max` (several codec variants and
@@ -101,7 +101,7 @@ struct PackReport {
 
 /// The budget `pack` plans with when neither `--codec` nor `--max-error` is given: issue
 /// #5's "production" budget, against the source.
-pub const DEFAULT_MAX_ERROR: &str = "log_rmse=0.002,p99_rel_core=0.05";
+pub const DEFAULT_MAX_ERROR: &str = crate::plan::budget::PRODUCTION;
 
 #[derive(Serialize)]
 struct BudgetReport {

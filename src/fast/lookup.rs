@@ -60,7 +60,8 @@ pub(crate) const BLOCK: usize = 64;
 impl HalfdiffIndexer {
     /// `None` when the grid is not a half/difference grid or has a θ limit.
     pub(crate) fn new(grid: &Grid) -> Option<HalfdiffIndexer> {
-        if grid.theta_max().is_some() {
+        // The vectorized index maps know the linear and sqrt warps only.
+        if grid.theta_max().is_some() || grid.axes().iter().any(|a| a.warp == Warp::Grazing) {
             return None;
         }
         let four = match grid.kind() {

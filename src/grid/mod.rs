@@ -117,6 +117,11 @@ pub enum Warp {
     /// angle = lo + (hi − lo) u², i.e. index ∝ sqrt(angle): dense near 0, as MERL's θh
     /// (Matusik et al. 2003) where specular peaks live.
     Sqrt,
+    /// angle = lo + (hi − lo)(1 − (1 − u)²): dense near the upper end, the mirror of
+    /// [`Warp::Sqrt`], for θ axes whose source changes fastest at the horizon (Fresnel and
+    /// shadowing at grazing; measured files whose f·cos θ is finite there). The last
+    /// centred sample of n sits 90°/(4n²) from the horizon instead of 90°/(2n).
+    Grazing,
 }
 
 impl Warp {
@@ -125,6 +130,10 @@ impl Warp {
         match self {
             Warp::Linear => u,
             Warp::Sqrt => u * u,
+            Warp::Grazing => {
+                let v = 1.0 - u;
+                1.0 - v * v
+            }
         }
     }
     #[inline]
@@ -132,6 +141,7 @@ impl Warp {
         match self {
             Warp::Linear => t,
             Warp::Sqrt => t.max(0.0).sqrt(),
+            Warp::Grazing => 1.0 - (1.0 - t).max(0.0).sqrt(),
         }
     }
     /// d(angle fraction)/du at u.
@@ -140,6 +150,7 @@ impl Warp {
         match self {
             Warp::Linear => 1.0,
             Warp::Sqrt => 2.0 * u,
+            Warp::Grazing => 2.0 * (1.0 - u),
         }
     }
 }
@@ -215,6 +226,35 @@ pub const MAX_CELLS: usize = 1 << 31;
 /// Largest resolution of one axis.
 pub const MAX_AXIS_RESOLUTION: usize = 1 << 16;
 
+/// What a table interpolates between its samples.
+///
+/// Plain: f itself. Cosine: f·cos θi·cos θo, divided by the query's cos θi·cos θo after the
+/// sum. A source whose f grows like 1/cos θ at the horizon (RGL files: their f·cos θo stays
+/// finite there, `docs/rgl.md`; Fresnel or shadowing-free microfacet lobes at grazing) is
+/// smooth in the weighted quantity, while f itself changes faster than any bin can follow
+/// in the last degree before the horizon. The values stored at the samples are f either
+/// way; only what happens between them differs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InterpWeight {
+    #[default]
+    None,
+    Cosine,
+}
+
+impl InterpWeight {
+    pub fn is_none(&self) -> bool {
+        *self == InterpWeight::None
+    }
+    /// The name in grid specs (`weight=cosine`).
+    pub fn name(self) -> &'static str {
+        match self {
+            InterpWeight::None => "none",
+            InterpWeight::Cosine => "cosine",
+        }
+    }
+}
+
 /// A parameterization of direction pairs with a resolution, warp and placement per axis.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Grid {
@@ -225,6 +265,8 @@ pub struct Grid {
     /// The limit in degrees as given, written to headers as is: rad → deg → rad does not
     /// always return the same f64, so a re-derived value could read back as another grid.
     theta_max_deg: Option<f64>,
+    /// What is interpolated between samples.
+    weight: InterpWeight,
 }
 
 /// Serialized form of a grid (what headers store): validated on the way in.
@@ -234,6 +276,9 @@ pub struct GridDesc {
     pub axes: Vec<AxisDesc>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub theta_max_deg: Option<f64>,
+    /// Absent for plain interpolation: headers of such grids are unchanged, byte for byte.
+    #[serde(default, skip_serializing_if = "InterpWeight::is_none")]
+    pub interp_weight: InterpWeight,
 }
 
 /// Serialized form of an axis.
@@ -324,6 +369,7 @@ impl Grid {
             axes: out,
             theta_max,
             theta_max_deg,
+            weight: InterpWeight::None,
         })
     }
 
@@ -351,7 +397,18 @@ impl Grid {
             )));
         }
         let axes: Vec<_> = d.axes.iter().map(|a| (a.n, a.warp, a.placement)).collect();
-        Grid::new(d.kind, &axes, d.theta_max_deg)
+        Ok(Grid::new(d.kind, &axes, d.theta_max_deg)?.with_weight(d.interp_weight))
+    }
+
+    /// The same samples with `weight` interpolated between them.
+    pub fn with_weight(mut self, weight: InterpWeight) -> Grid {
+        self.weight = weight;
+        self
+    }
+
+    /// What is interpolated between samples.
+    pub fn weight(&self) -> InterpWeight {
+        self.weight
     }
 
     pub fn desc(&self) -> GridDesc {
@@ -368,6 +425,7 @@ impl Grid {
                 })
                 .collect(),
             theta_max_deg: self.theta_max_deg,
+            interp_weight: self.weight,
         }
     }
 
@@ -416,6 +474,9 @@ impl Grid {
         );
         if let Some(d) = self.theta_max_deg {
             s.push_str(&format!("; theta-max {d}°"));
+        }
+        if !self.weight.is_none() {
+            s.push_str(&format!("; weight {}", self.weight.name()));
         }
         s
     }

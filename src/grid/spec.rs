@@ -2,13 +2,13 @@
 //!
 //! ```text
 //! merl
-//! KIND:DIMS[,warp=W[/W...]][,at=center|edge[/...]][,theta-max=DEG]
+//! KIND:DIMS[,warp=W[/W...]][,at=center|edge[/...]][,theta-max=DEG][,weight=none|cosine]
 //! KIND  = spherical4 | spherical3 | halfdiff3 | halfdiff4
 //! DIMS  = N | NxNx...            (one N applies to every axis)
-//! W     = linear | sqrt          (one value applies to every axis)
+//! W     = linear | sqrt | grazing (one value applies to every axis)
 //! ```
 
-use super::{Grid, GridKind, Placement, Warp};
+use super::{Grid, GridKind, InterpWeight, Placement, Warp};
 use crate::{Error, Result};
 
 /// Parses a grid spec such as `merl` or `halfdiff4:64,warp=sqrt/linear/linear/linear`.
@@ -49,6 +49,7 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
     let mut warps = vec![Warp::Linear; d];
     let mut placements = vec![Placement::Center; d];
     let mut theta_max = None;
+    let mut weight = InterpWeight::None;
     for opt in parts {
         let (k, v) = opt.split_once('=').ok_or_else(|| {
             Error::input(format!("grid {spec:?}: option {opt:?} is not key=value"))
@@ -60,8 +61,9 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
                     .map(|w| match *w {
                         "linear" => Ok(Warp::Linear),
                         "sqrt" => Ok(Warp::Sqrt),
+                        "grazing" => Ok(Warp::Grazing),
                         _ => Err(Error::input(format!(
-                            "grid {spec:?}: warp {w:?} is not linear or sqrt"
+                            "grid {spec:?}: warp {w:?} is not linear, sqrt or grazing"
                         ))),
                     })
                     .collect::<Result<_>>()?
@@ -85,15 +87,26 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
                     ))
                 })?)
             }
+            "weight" => {
+                weight = match v {
+                    "none" => InterpWeight::None,
+                    "cosine" => InterpWeight::Cosine,
+                    _ => {
+                        return Err(Error::input(format!(
+                            "grid {spec:?}: weight {v:?} is not none or cosine"
+                        )));
+                    }
+                }
+            }
             _ => {
                 return Err(Error::input(format!(
-                    "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max)"
+                    "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max, weight)"
                 )));
             }
         }
     }
     let axes: Vec<_> = (0..d).map(|k| (dims[k], warps[k], placements[k])).collect();
-    Grid::new(kind, &axes, theta_max)
+    Ok(Grid::new(kind, &axes, theta_max)?.with_weight(weight))
 }
 
 /// Splits `s` on `sep` and broadcasts a single value to `d` axes.

@@ -8,6 +8,11 @@ use crate::{Error, Result};
 /// bound × this on the search's sample set (and every bound on the held-out set).
 pub const MARGIN: f64 = 0.98;
 
+/// The named budget `preview`: a table for look development and previews.
+pub const PREVIEW: &str = "log_rmse=0.01,p99_rel_core=0.2";
+/// The named budget `production`: `pack`'s default.
+pub const PRODUCTION: &str = "log_rmse=0.002,p99_rel_core=0.05";
+
 /// Upper bounds on metrics of `spec/metrics.md`, all on the same sample set.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Budget {
@@ -15,12 +20,22 @@ pub struct Budget {
 }
 
 impl Budget {
-    /// Parses `log_rmse=0.01[,p99_rel_core=0.2,...]`.
+    /// Parses `log_rmse=0.01[,p99_rel_core=0.2,...]`, or a named budget: `preview`
+    /// (log_rmse ≤ 0.01, p99_rel_core ≤ 0.2) or `production` (log_rmse ≤ 0.002,
+    /// p99_rel_core ≤ 0.05, the default of `pack`).
     pub fn parse(s: &str) -> Result<Budget> {
+        match s.trim() {
+            "preview" => return Budget::parse(PREVIEW),
+            "production" => return Budget::parse(PRODUCTION),
+            _ => {}
+        }
         let mut bounds = Vec::new();
         for part in s.split(',').filter(|p| !p.trim().is_empty()) {
             let (k, v) = part.split_once('=').ok_or_else(|| {
-                Error::input(format!("--max-error {s:?}: {part:?} is not METRIC=VALUE"))
+                Error::input(format!(
+                    "--max-error {s:?}: {part:?} is not METRIC=VALUE (or the whole budget \
+                     `preview` or `production`)"
+                ))
             })?;
             let k = k.trim();
             if !BOUNDABLE.contains(&k) || k == "albedo_err" {

@@ -30,6 +30,7 @@ use crate::check::{
     Metrics, SampleSet, evaluate_set, in_core, log_error, metric_epsilon, metrics, percentile,
     rel_error,
 };
+use crate::grid::Grid;
 use crate::table::{Interp, Stencil, Table};
 use crate::{Error, Result};
 use rayon::prelude::*;
@@ -134,6 +135,69 @@ impl ReferenceSet {
             values,
             channels: source.channels().len(),
         }
+    }
+
+    /// [`ReferenceSet::new`] inside a table's stored domain (θi, θo ≤ θmax of `domain`):
+    /// uniform pairs drawn until `n` fall inside it, so that the estimate has as many pairs
+    /// as on a full hemisphere. `None`: the whole hemisphere.
+    pub fn new_in(source: &dyn Brdf, n: usize, domain: Option<&Grid>) -> ReferenceSet {
+        let Some(g) = domain.filter(|g| g.theta_max().is_some()) else {
+            return ReferenceSet::new(source, n);
+        };
+        let mut pairs = Vec::with_capacity(n);
+        let mut round = 0u64;
+        // Rounds of 2n candidates from consecutive seeds; a domain of θmax > 0 always fills.
+        while pairs.len() < n {
+            let more = SampleSet::uniform(2 * n.max(1), ESTIMATE_SEED.wrapping_add(round));
+            pairs.extend(
+                more.pairs
+                    .into_iter()
+                    .filter(|&(wi, wo)| g.in_domain(wi, wo))
+                    .take(n - pairs.len()),
+            );
+            round += 1;
+        }
+        let set = SampleSet {
+            name: "uniform".into(),
+            seed: Some(ESTIMATE_SEED),
+            pairs,
+            weights: None,
+        };
+        let values = evaluate_set(source, &set);
+        ReferenceSet {
+            set,
+            values,
+            channels: source.channels().len(),
+        }
+    }
+
+    /// [`ReferenceSet::uniform`] restricted to a table's stored domain, as `check` restricts
+    /// its sets: the user's check set of `n` pairs keeps those inside.
+    pub fn uniform_in(
+        source: &dyn Brdf,
+        n: usize,
+        seed: u64,
+        domain: Option<&Grid>,
+    ) -> ReferenceSet {
+        let Some(g) = domain.filter(|g| g.theta_max().is_some()) else {
+            return ReferenceSet::uniform(source, n, seed);
+        };
+        let set = SampleSet::uniform(n, seed).restricted(|wi, wo| g.in_domain(wi, wo));
+        let values = evaluate_set(source, &set);
+        ReferenceSet {
+            set,
+            values,
+            channels: source.channels().len(),
+        }
+    }
+
+    /// Pairs in the set.
+    pub fn len(&self) -> usize {
+        self.set.pairs.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.set.pairs.is_empty()
     }
 
     /// ε of the relative metrics on this set: 1e-3 · mean |f| (`spec/metrics.md`).

@@ -14,7 +14,7 @@ use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
 use super::grids::default_grid_spec;
 use super::rate::{Effort, Encoded, Progress, RateOutcome, encode_within};
 use crate::brdf::Brdf;
-use crate::grid::{Grid, parse_grid_spec};
+use crate::grid::{Grid, InterpWeight, Quantity, Warp, parse_grid_spec};
 use crate::table::Table;
 use crate::tabulate::{TabulateOptions, tabulate};
 use crate::{Error, Result};
@@ -124,8 +124,23 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     } else {
         ESTIMATE_PAIRS
     };
-    let reference = ReferenceSet::new(source, pairs);
-    let check = ReferenceSet::uniform(source, settings.check_samples, settings.check_seed);
+    // A table stored up to θmax is measured inside that domain only, as `check` measures it:
+    // beyond it the table holds no values, and errors there are errors no one asked for.
+    let domain: Option<Grid> = match &input {
+        PackInput::Table(t) => Some(t.grid().clone()),
+        PackInput::Source { .. } => start.clone(),
+    }
+    .filter(|g| g.theta_max().is_some());
+    let reference = ReferenceSet::new_in(source, pairs, domain.as_ref());
+    let check = ReferenceSet::uniform_in(
+        source,
+        settings.check_samples,
+        settings.check_seed,
+        domain.as_ref(),
+    );
+    // The upper values are for independent sets the size of the user's check set inside
+    // the domain.
+    let for_samples = check.len().max(1);
     timings.push(("reference values".to_string(), t.elapsed().as_secs_f64()));
     let prepare = |grid: Option<&Grid>, timings: &mut Vec<(String, f64)>| -> Result<Tabulated> {
         let t = Instant::now();
@@ -141,8 +156,30 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         timings.push((format!("tabulate {spec}"), tabulate_s));
         let t = Instant::now();
         progress(&format!("interpolation stencils on {spec}"));
-        let est = ErrorEstimator::new(&table, &reference, Some(&check), settings.check_samples)?;
-        let floor = est.measure(table.data());
+        let mut table = table;
+        let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
+        let mut floor = est.measure(table.data());
+        // What is interpolated between the samples is measured too, when the planner owns
+        // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
+        // horizon is smooth only in the latter). Tried when the grid's own error is a real
+        // share of the budget; the other stencils cost a fraction of a tabulation.
+        let mut spec = spec;
+        if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
+            let plain = table.grid().weight();
+            let other = match plain {
+                InterpWeight::None => InterpWeight::Cosine,
+                InterpWeight::Cosine => InterpWeight::None,
+            };
+            table.set_interp_weight(other);
+            let est_w = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
+            let floor_w = est_w.measure(table.data());
+            if floor_share(&settings.budget, &floor_w) < floor_share(&settings.budget, &floor) {
+                (est, floor) = (est_w, floor_w);
+                spec = table.grid().describe();
+            } else {
+                table.set_interp_weight(plain);
+            }
+        }
         timings.push((
             format!("stencils and grid error {spec}"),
             t.elapsed().as_secs_f64(),
@@ -253,6 +290,30 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 next = Some((sh, cand));
             }
         }
+        // The same cells with the θ axes that reach the horizon warped toward it (θi and θo
+        // together, or θd): a source that changes fastest in the last degrees before the
+        // horizon gains more from there than from any doubling.
+        if base.theta_max_deg.is_none() {
+            let mut d = base.clone();
+            let mut changed = false;
+            for a in d.axes.iter_mut() {
+                if matches!(
+                    a.quantity,
+                    Quantity::ThetaI | Quantity::ThetaO | Quantity::ThetaD
+                ) && a.warp == Warp::Linear
+                {
+                    a.warp = Warp::Grazing;
+                    changed = true;
+                }
+            }
+            if changed && let Ok(g) = Grid::from_desc(&d) {
+                let cand = prepare(Some(&g), &mut timings)?;
+                let sh = floor_share(&settings.budget, &cand.floor);
+                if next.as_ref().is_none_or(|(b, _)| sh < *b) {
+                    next = Some((sh, cand));
+                }
+            }
+        }
         let Some((_, cand)) = next else { break };
         current = cand;
         refinements += 1;
@@ -272,6 +333,10 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         encode_s,
     })
 }
+
+/// A grid whose own error uses more than this share of a bound has the other interpolation
+/// weight measured ([`InterpWeight`]).
+const WEIGHT_TRY_SHARE: f64 = 0.25;
 
 /// A grid whose own error uses more than this share of a bound gets one finer grid tried.
 const TIGHT_FLOOR: f64 = 0.6;
