@@ -133,8 +133,10 @@ impl SampleSet {
     pub fn cells(grid: &Grid, valid: &[bool]) -> SampleSet {
         let d = grid.axes().len();
         let mut idx = [0usize; 4];
-        let mut pairs = Vec::new();
-        let mut weights = Vec::new();
+        // Exact sizes: doubling growth would hold up to twice the set while it grows.
+        let n = valid.iter().filter(|&&v| v).count();
+        let mut pairs = Vec::with_capacity(n);
+        let mut weights = Vec::with_capacity(n);
         for (f, &ok) in valid.iter().enumerate() {
             if !ok {
                 continue;
@@ -450,6 +452,12 @@ pub struct CheckReport {
     pub theta_max_deg: Option<f64>,
 }
 
+/// Bytes of the `cells` check set of `n` cells with `channels` values per source: two f64
+/// direction vectors (48), a weight (8) and the two sources' f64 values.
+pub fn cells_set_bytes(n: usize, channels: usize) -> u64 {
+    (n as u64).saturating_mul(56 + 16 * channels as u64)
+}
+
 /// Checks `candidate` against `reference`. `cells`: the candidate table's grid and validity,
 /// for the `cells` set.
 pub fn check(
@@ -489,6 +497,12 @@ pub fn check(
             &domain(SampleSet::specular(n, opts.seed)),
         )?);
         if let Some((grid, valid)) = cells {
+            // The set holds every valid cell: a pair, a weight and both sources' values.
+            let n = valid.iter().filter(|&&v| v).count();
+            crate::memory::require(
+                &format!("the `cells` check set of {n} cells"),
+                cells_set_bytes(n, candidate.channels().len()),
+            )?;
             others.push(check_set(
                 reference,
                 candidate,

@@ -131,6 +131,25 @@ pub fn pair_bytes(n: usize) -> u64 {
     (n as u64).saturating_mul(96)
 }
 
+/// Most worker threads a run may start (`RAYON_NUM_THREADS`, `bench --threads`): thousands
+/// of threads on a few cores cost minutes of scheduling for a millisecond's work (issue 20:
+/// `RAYON_NUM_THREADS=5000` made a 288-cell tabulation take 4 minutes).
+pub const MAX_THREADS: usize = 1024;
+
+/// Refuses a `RAYON_NUM_THREADS` above [`MAX_THREADS`]. Values rayon itself ignores (not a
+/// number, 0 = one thread per core) are left to it.
+pub fn check_thread_env() -> Result<()> {
+    if let Ok(s) = std::env::var("RAYON_NUM_THREADS")
+        && let Ok(n) = s.parse::<usize>()
+        && n > MAX_THREADS
+    {
+        return Err(Error::input(format!(
+            "RAYON_NUM_THREADS={n}: more than {MAX_THREADS} threads"
+        )));
+    }
+    Ok(())
+}
+
 /// `vec![value; n]` that returns an error naming `what` instead of aborting when the
 /// allocator refuses (the budget checks come first; this catches what they do not count).
 pub fn try_filled<T: Clone>(n: usize, value: T, what: &str) -> Result<Vec<T>> {

@@ -384,7 +384,9 @@ impl Default for PropsOptions {
 /// A direction pair where a property is worst.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct DirPair {
+    #[serde(serialize_with = "json_number::many")]
     pub wi: [f64; 3],
+    #[serde(serialize_with = "json_number::many")]
     pub wo: [f64; 3],
 }
 
@@ -440,24 +442,84 @@ pub const SYMMETRY_TOLERANCE: f64 = 1e-9;
 pub struct AlbedoRow {
     pub theta_i_deg: f64,
     pub phi_i_deg: f64,
+    #[serde(serialize_with = "json_number::many")]
     pub albedo: Vec<f64>,
     /// Quadrature-error estimate per channel (see [`albedo_estimate`]).
+    #[serde(serialize_with = "json_number::many")]
     pub error: Vec<f64>,
     /// BRDF evaluations spent on this row.
     pub evaluations: usize,
 }
 
+/// What the albedo estimates show about energy conservation, worst first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EnergyVerdict {
+    /// An albedo or its error estimate is NaN or infinite: the source gives non-finite
+    /// values, or values whose integral overflows f64.
+    NonFinite,
+    /// An albedo exceeds 1 by more than max(its error estimate, [`ALBEDO_TOLERANCE`]).
+    Exceeds,
+    /// An albedo's error estimate is above [`ALBEDO_UNRESOLVED`] and the estimate plus its
+    /// error exceeds 1: the quadrature does not resolve the source (a spike between its
+    /// nodes, say), so neither conservation nor its failure is shown.
+    Unresolved,
+    /// Every albedo is ≤ 1 within max(its error estimate, [`ALBEDO_TOLERANCE`]).
+    Conserves,
+}
+
+/// Error estimate above which an albedo that may exceed 1 counts as unresolved: a tenth of
+/// the largest physical albedo (smooth sources stay below 1e-2, docs/props.md).
+pub const ALBEDO_UNRESOLVED: f64 = 0.1;
+
 /// Energy conservation: max albedo ≤ 1 within the quadrature error.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Energy {
+    /// The albedo the verdict rests on: the largest one, or the first non-finite one, or
+    /// the unresolved one with the largest estimate + error.
+    #[serde(serialize_with = "json_number::one")]
     pub max_albedo: f64,
     pub at_theta_i_deg: f64,
     pub at_phi_i_deg: f64,
     pub channel: usize,
-    /// max(error estimate at the maximum, [`ALBEDO_TOLERANCE`]).
+    /// max(error estimate at `max_albedo`, [`ALBEDO_TOLERANCE`]).
+    #[serde(serialize_with = "json_number::one")]
     pub tolerance: f64,
-    /// `max_albedo <= 1 + tolerance`.
+    /// `verdict == Conserves`.
     pub conserves: bool,
+    pub verdict: EnergyVerdict,
+}
+
+/// JSON has no infinities or NaN: serde_json writes them as `null`, which a reader takes for
+/// a missing value. Non-finite numbers of a report are written as the strings `"inf"`,
+/// `"-inf"` and `"nan"` instead (docs/props.md).
+mod json_number {
+    use serde::{Serialize, Serializer};
+
+    struct Number(f64);
+
+    impl Serialize for Number {
+        fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+            let x = self.0;
+            if x.is_finite() {
+                s.serialize_f64(x)
+            } else if x.is_nan() {
+                s.serialize_str("nan")
+            } else if x > 0.0 {
+                s.serialize_str("inf")
+            } else {
+                s.serialize_str("-inf")
+            }
+        }
+    }
+
+    pub fn one<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        Number(*x).serialize(s)
+    }
+
+    pub fn many<S: Serializer, T: AsRef<[f64]>>(xs: &T, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(xs.as_ref().iter().map(|&x| Number(x)))
+    }
 }
 
 /// The coefficient of a source's Dirac-delta (specular) part at one incidence: the energy
@@ -467,6 +529,7 @@ pub struct Energy {
 pub struct SpecularRow {
     pub theta_i_deg: f64,
     pub phi_i_deg: f64,
+    #[serde(serialize_with = "json_number::many")]
     pub coefficient: Vec<f64>,
 }
 
@@ -521,11 +584,22 @@ impl PropsReport {
             }
         }
         let e = &self.energy;
-        if !e.conserves {
-            out.push(format!(
-                "albedo {} > 1 + {:e} at θi {}°, φi {}°",
-                e.max_albedo, e.tolerance, e.at_theta_i_deg, e.at_phi_i_deg
-            ));
+        let at = format!("at θi {:.2}°, φi {:.0}°", e.at_theta_i_deg, e.at_phi_i_deg);
+        match e.verdict {
+            EnergyVerdict::Conserves => {}
+            EnergyVerdict::Exceeds => out.push(format!(
+                "albedo {:.6e} > 1 + {:.1e} {at}",
+                e.max_albedo, e.tolerance
+            )),
+            EnergyVerdict::Unresolved => out.push(format!(
+                "albedo {:.3e} ± {:.1e} {at} is not resolved by the quadrature (error \
+                 estimate above {ALBEDO_UNRESOLVED}): energy conservation not shown",
+                e.max_albedo, e.tolerance
+            )),
+            EnergyVerdict::NonFinite => out.push(format!(
+                "albedo {} ± {} {at} is not a finite number",
+                e.max_albedo, e.tolerance
+            )),
         }
         self.failures = out;
     }
@@ -695,26 +769,7 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
             }
         })
         .collect();
-    let mut energy = Energy {
-        max_albedo: 0.0,
-        at_theta_i_deg: 0.0,
-        at_phi_i_deg: 0.0,
-        channel: 0,
-        tolerance: ALBEDO_TOLERANCE,
-        conserves: true,
-    };
-    for row in &albedo {
-        for (c, (&a, &e)) in row.albedo.iter().zip(&row.error).enumerate() {
-            if a > energy.max_albedo {
-                energy.max_albedo = a;
-                energy.at_theta_i_deg = row.theta_i_deg;
-                energy.at_phi_i_deg = row.phi_i_deg;
-                energy.channel = c;
-                energy.tolerance = e.max(ALBEDO_TOLERANCE);
-            }
-        }
-    }
-    energy.conserves = energy.max_albedo <= 1.0 + energy.tolerance;
+    let energy = energy_verdict(&albedo);
 
     let specular = angles
         .iter()
@@ -744,6 +799,55 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
     };
     report.collect_failures();
     report
+}
+
+/// The energy verdict over every albedo row and channel: the worst [`EnergyVerdict`], and
+/// the albedo it rests on (for `Conserves` and `Exceeds` the largest albedo; for
+/// `Unresolved` the largest estimate + error among the unresolved; for `NonFinite` the
+/// first non-finite one).
+fn energy_verdict(albedo: &[AlbedoRow]) -> Energy {
+    let mut energy = Energy {
+        max_albedo: 0.0,
+        at_theta_i_deg: 0.0,
+        at_phi_i_deg: 0.0,
+        channel: 0,
+        tolerance: ALBEDO_TOLERANCE,
+        conserves: true,
+        verdict: EnergyVerdict::Conserves,
+    };
+    // (verdict, rank within the verdict: larger is worse)
+    let mut worst: Option<(EnergyVerdict, f64)> = None;
+    for row in albedo {
+        for (c, (&a, &e)) in row.albedo.iter().zip(&row.error).enumerate() {
+            let tol = e.max(ALBEDO_TOLERANCE);
+            let this = if !(a.is_finite() && e.is_finite()) {
+                (EnergyVerdict::NonFinite, 0.0)
+            } else if a > 1.0 + tol {
+                (EnergyVerdict::Exceeds, a)
+            } else if e > ALBEDO_UNRESOLVED && a + e > 1.0 + ALBEDO_TOLERANCE {
+                (EnergyVerdict::Unresolved, a + e)
+            } else {
+                (EnergyVerdict::Conserves, a)
+            };
+            let replace = match worst {
+                None => true,
+                Some((v, rank)) => this.0 < v || (this.0 == v && this.1 > rank),
+            };
+            if replace {
+                worst = Some(this);
+                energy.max_albedo = a;
+                energy.at_theta_i_deg = row.theta_i_deg;
+                energy.at_phi_i_deg = row.phi_i_deg;
+                energy.channel = c;
+                energy.tolerance = if e.is_finite() { tol } else { e };
+            }
+        }
+    }
+    if let Some((v, _)) = worst {
+        energy.verdict = v;
+    }
+    energy.conserves = energy.verdict == EnergyVerdict::Conserves;
+    energy
 }
 
 /// max over channels of |a − b| / max(|a|, |b|, floor); a non-finite value counts as a
@@ -1135,5 +1239,69 @@ mod tests {
             HalfVectorRule::COARSE.evaluations(),
             HalfVectorRule::FINE.evaluations()
         );
+    }
+
+    fn rows(values: &[(f64, f64)]) -> Vec<AlbedoRow> {
+        values
+            .iter()
+            .enumerate()
+            .map(|(k, &(a, e))| AlbedoRow {
+                theta_i_deg: k as f64,
+                phi_i_deg: 0.0,
+                albedo: vec![a],
+                error: vec![e],
+                evaluations: 1,
+            })
+            .collect()
+    }
+
+    /// Issue 20: "albedo 4735 ± 4735" was reported as conserving (4735 ≤ 1 + 4735).
+    #[test]
+    fn energy_verdicts() {
+        let v = |r: &[(f64, f64)]| energy_verdict(&rows(r));
+        let e = v(&[(0.5, 1e-5), (0.99, 2e-4)]);
+        assert_eq!(
+            (e.verdict, e.max_albedo, e.tolerance),
+            (EnergyVerdict::Conserves, 0.99, 2e-4)
+        );
+        assert!(e.conserves);
+        // Within the tolerance and a small estimate: conserves, as before.
+        assert_eq!(v(&[(1.00005, 1e-5)]).verdict, EnergyVerdict::Conserves);
+        assert_eq!(v(&[(1.05, 0.06)]).verdict, EnergyVerdict::Conserves);
+        let e = v(&[(4735.0, 4735.0), (0.3, 1e-4)]);
+        assert_eq!(
+            (e.verdict, e.max_albedo, e.at_theta_i_deg),
+            (EnergyVerdict::Unresolved, 4735.0, 0.0)
+        );
+        assert!(!e.conserves);
+        // An unresolved row that cannot reach 1 leaves the verdict alone.
+        assert_eq!(v(&[(0.3, 0.5)]).verdict, EnergyVerdict::Conserves);
+        // A clear excess outranks an unresolved row and a larger conserving estimate.
+        let e = v(&[(4735.0, 4735.0), (1.2, 1e-3), (1.3, 0.5)]);
+        assert_eq!((e.verdict, e.max_albedo), (EnergyVerdict::Exceeds, 1.2));
+        let e = v(&[(1.2, 1e-3), (f64::INFINITY, f64::NAN), (0.5, 1e-4)]);
+        assert_eq!(
+            (e.verdict, e.at_theta_i_deg),
+            (EnergyVerdict::NonFinite, 1.0)
+        );
+        assert!(e.max_albedo.is_infinite() && e.tolerance.is_nan());
+        assert_eq!(v(&[(0.5, f64::INFINITY)]).verdict, EnergyVerdict::NonFinite);
+        assert_eq!(v(&[(f64::NAN, 0.0)]).verdict, EnergyVerdict::NonFinite);
+    }
+
+    /// JSON has no infinities: a report's non-finite numbers are strings, never null.
+    #[test]
+    fn non_finite_numbers_are_strings_in_json() {
+        let mut r = rows(&[(f64::INFINITY, f64::NAN), (f64::NEG_INFINITY, 0.5)]);
+        r[1].albedo.push(0.25);
+        let e = energy_verdict(&r);
+        let json = serde_json::to_value((&r, &e)).unwrap();
+        assert_eq!(json[0][0]["albedo"], serde_json::json!(["inf"]));
+        assert_eq!(json[0][0]["error"], serde_json::json!(["nan"]));
+        assert_eq!(json[0][1]["albedo"], serde_json::json!(["-inf", 0.25]));
+        assert_eq!(json[1]["max_albedo"], "inf");
+        assert_eq!(json[1]["tolerance"], "nan");
+        assert_eq!(json[1]["verdict"], "non_finite");
+        assert!(!json.to_string().contains("null"), "{json}");
     }
 }

@@ -169,7 +169,7 @@ fn tabulate_generic(
                     // The source's parameters are the user's: input at fault (exit 2).
                     if !f.is_finite() {
                         return Err(Error::Input(format!(
-                            "{} gave {v} at cell {cell} (wi = {:?}, wo = {:?}), which f32 storage \
+                            "{} gave {v:.4e} at cell {cell} (wi = {:?}, wo = {:?}), which f32 storage \
                              cannot hold",
                             src.describe(),
                             wi.to_array(),

@@ -821,8 +821,38 @@ fn input_at_fault_exits_2() {
         d,
         &["tabulate", spec, "--grid", "halfdiff3:4", "-o", "x.bpk"],
     );
-    assert_refused(&o, &["f32 storage cannot hold"]);
+    assert_refused(&o, &["f32 storage cannot hold", "lafortune", "e45 at cell"]);
+    // The value in short scientific form (it printed 47 digits).
+    assert!(!has_long_number(&stderr(&o), 20), "{}", stderr(&o));
     assert!(!d.join("x.bpk").exists());
+    // Every command that stores the model's values refuses it the same way.
+    for args in [
+        vec!["convert", spec, "--grid", "halfdiff3:4", "-o", "x.bpk"],
+        vec![
+            "compress",
+            spec,
+            "--grid",
+            "halfdiff3:4",
+            "--codec",
+            "lossless",
+            "-o",
+            "x.bpk",
+        ],
+        vec![
+            "pack",
+            spec,
+            "--grid",
+            "halfdiff3:4",
+            "--codec",
+            "lossless",
+            "-o",
+            "x.bpk",
+        ],
+    ] {
+        let o = run(d, &args);
+        assert_refused(&o, &["f32 storage cannot hold", "e45 at cell"]);
+        assert!(!d.join("x.bpk").exists());
+    }
 }
 
 #[test]
@@ -846,4 +876,347 @@ fn rgb_is_never_compared_with_spectral_channel_by_channel() {
             "--to-rgb",
         ],
     );
+}
+
+/// The byte offset and value count of the float32 field `name` of an RGL tensor file.
+fn rgl_field(bytes: &[u8], name: &str) -> (usize, usize) {
+    let n = u32::from_le_bytes(bytes[14..18].try_into().unwrap()) as usize;
+    let mut pos = 18;
+    for _ in 0..n {
+        let nl = u16::from_le_bytes(bytes[pos..pos + 2].try_into().unwrap()) as usize;
+        let field = &bytes[pos + 2..pos + 2 + nl];
+        pos += 2 + nl;
+        let nd = u16::from_le_bytes(bytes[pos..pos + 2].try_into().unwrap()) as usize;
+        pos += 3;
+        let offset = u64::from_le_bytes(bytes[pos..pos + 8].try_into().unwrap()) as usize;
+        pos += 8;
+        let mut count = 1;
+        for _ in 0..nd {
+            count *= u64::from_le_bytes(bytes[pos..pos + 8].try_into().unwrap()) as usize;
+            pos += 8;
+        }
+        if field == name.as_bytes() {
+            return (offset, count);
+        }
+    }
+    panic!("no field {name}");
+}
+
+/// `fixtures/rgl/tiny.bsdf` with every value of the float32 field `name` set to `value`.
+fn rgl_with(name: &str, value: f32) -> Vec<u8> {
+    let mut b = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/tiny.bsdf"))
+        .unwrap();
+    let (offset, count) = rgl_field(&b, name);
+    for k in 0..count {
+        b[offset + 4 * k..offset + 4 * k + 4].copy_from_slice(&value.to_le_bytes());
+    }
+    b
+}
+
+/// A run of `n` or more digits: a number printed in full instead of in short form.
+fn has_long_number(s: &str, n: usize) -> bool {
+    s.split(|c: char| !c.is_ascii_digit()).any(|w| w.len() >= n)
+}
+
+#[test]
+fn rgl_values_beyond_f32_are_refused_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Used to be read, then: props exit 1 with 39-digit albedos, tabulate a 40-digit value.
+    for (name, field, value, shown) in [
+        ("sigma.bsdf", "sigma", 1e-40f32, "1e-40"),
+        ("ndf.bsdf", "ndf", 3e38, "3e38"),
+        ("rgb.bsdf", "rgb", 3e38, "3e38"),
+    ] {
+        std::fs::write(d.join(name), rgl_with(field, value)).unwrap();
+        for args in [
+            vec!["inspect", name],
+            vec!["eval", name, "--wi", "0,0,1", "--wo", "0,0,1"],
+            vec!["props", name, "--samples", "100"],
+            vec![
+                "tabulate",
+                name,
+                "--grid",
+                "halfdiff3:4",
+                "--allow-nonreciprocal",
+                "-o",
+                "x.bpk",
+            ],
+        ] {
+            let o = run(d, &args);
+            assert_refused(&o, &[name, &format!("field `{field}`"), shown]);
+            assert!(!has_long_number(&stderr(&o), 20), "{}", stderr(&o));
+            assert!(o.stdout.is_empty());
+        }
+        assert!(!d.join("x.bpk").exists());
+    }
+    // A subnormal σ anywhere, even with ordinary ndf and colours.
+    let mut b = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/tiny.bsdf"))
+        .unwrap();
+    let (offset, count) = rgl_field(&b, "sigma");
+    b[offset + 4 * (count - 1)..offset + 4 * count].copy_from_slice(&1e-39f32.to_le_bytes());
+    std::fs::write(d.join("one.bsdf"), &b).unwrap();
+    let o = run(d, &["inspect", "one.bsdf"]);
+    assert_refused(
+        &o,
+        &["field `sigma`", &format!("value #{} is 1e-39", count - 1)],
+    );
+    // Large but storable values stay readable.
+    std::fs::write(d.join("big.bsdf"), rgl_with("rgb", 1e20)).unwrap();
+    let o = run(d, &["inspect", "big.bsdf"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn props_reports_non_physical_estimates_plainly() {
+    use brdfpack::codec::CodecSpec;
+    use brdfpack::table::Table;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A Lambert table with one spike of 1e30 between the quadrature's nodes: the estimate
+    // and its error are both huge (was: "max albedo 4735 ... conserves", exit 0).
+    let base = tabulate(d, "flat.bpk", "lambert", "halfdiff3:8x8x16", &[]);
+    let t = brdfpack::io::native::from_bytes(&std::fs::read(&base).unwrap(), &base).unwrap();
+    let mut data = t.data().to_vec();
+    let spike = t.valid().iter().position(|&v| v).unwrap() + 300;
+    assert!(t.valid()[spike]);
+    data[spike] = 1e30;
+    let spiked = Table::new(
+        t.grid().clone(),
+        t.channels().clone(),
+        t.provenance().clone(),
+        data,
+        t.valid().to_vec(),
+    )
+    .unwrap();
+    let bytes = brdfpack::io::native::to_bytes(&spiked, &CodecSpec::ZstdF32 { level: 1 }).unwrap();
+    std::fs::write(d.join("spike.bpk"), bytes).unwrap();
+
+    let o = run(d, &["props", "spike.bpk", "--samples", "1000"]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(1), "{text}{}", stderr(&o));
+    let energy = text.lines().find(|l| l.starts_with("energy")).unwrap();
+    assert!(!energy.contains("conserves"), "{energy}");
+    assert!(
+        energy.contains("EXCEEDS 1") || energy.contains("UNRESOLVED"),
+        "{energy}"
+    );
+    assert!(!has_long_number(&text, 12), "{text}");
+    assert!(text.contains("verdict      FAIL"), "{text}");
+
+    let o = run(d, &["props", "spike.bpk", "--samples", "1000", "--json"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let json = String::from_utf8(o.stdout).unwrap();
+    assert!(!json.contains("null"), "{json}");
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(v["energy"]["conserves"], false);
+    let verdict = v["energy"]["verdict"].as_str().unwrap();
+    assert!(["exceeds", "unresolved"].contains(&verdict), "{verdict}");
+    assert!(v["energy"]["max_albedo"].as_f64().unwrap() > 1.0);
+
+    // The unspiked table still conserves, as before.
+    let o = run(d, &["props", "flat.bpk", "--samples", "1000", "--json"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["energy"]["verdict"], "conserves");
+}
+
+#[test]
+fn rgl_descriptions_are_escaped() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut b = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/tiny.bsdf"))
+        .unwrap();
+    let old = b"brdfpack synthetic tiny RGL material";
+    let at = b.windows(old.len()).position(|w| w == old).unwrap();
+    let mut bomb = b"\x1b[2J\x1b]0;pwned\x07verified: OK\r".to_vec();
+    bomb.resize(old.len(), b' ');
+    b[at..at + old.len()].copy_from_slice(&bomb);
+    std::fs::write(d.join("esc.bsdf"), &b).unwrap();
+    for args in [
+        &["inspect", "esc.bsdf"][..],
+        &["props", "esc.bsdf", "--samples", "10"],
+        &[
+            "tabulate",
+            "esc.bsdf",
+            "--grid",
+            "halfdiff3:4",
+            "--allow-nonreciprocal",
+            "-o",
+            "-",
+        ],
+    ] {
+        let o = run(d, args);
+        // props may fail a property (exit 1); the text is what matters here.
+        assert!(
+            matches!(o.status.code(), Some(0 | 1)),
+            "{args:?}: {}",
+            stderr(&o)
+        );
+        let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), stderr(&o));
+        if args[0] != "tabulate" {
+            assert!(text.contains("\\u{1b}"), "{args:?}: {text}");
+            assert!(!text.contains('\u{1b}') && !text.contains('\u{7}') && !text.contains('\r'));
+        } else {
+            // The binary table carries the description in its header; stderr is clean.
+            assert!(!stderr(&o).contains('\u{1b}'));
+        }
+    }
+}
+
+#[test]
+fn device_outputs_stay_devices() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    let want = file_bytes_of_small_table(dir.path());
+    // As root, `-o /dev/null` replaced the device node with a regular file.
+    let o = tabulate_small_to(dir.path(), "/dev/null");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        std::fs::metadata("/dev/null")
+            .unwrap()
+            .file_type()
+            .is_char_device()
+    );
+    // `/dev/stdout` (a symlink to /proc/self/fd/1) is written through, not replaced.
+    let o = tabulate_small_to(dir.path(), "/dev/stdout");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(o.stdout, want);
+    assert!(
+        std::fs::symlink_metadata("/dev/stdout")
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
+}
+
+#[test]
+fn binary_output_to_a_terminal_needs_force() {
+    // `script` gives the command a pseudo-terminal as stdout.
+    if Command::new("script").arg("--version").output().is_err() {
+        println!("skipped: no `script` to allocate a pseudo-terminal");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let tty = |extra: &str| {
+        Command::new("script")
+            .current_dir(dir.path())
+            .args(["-qec"])
+            .arg(format!(
+                "{BIN} tabulate lambert --grid halfdiff3:4 -o - {extra}; echo \" exit=$?\""
+            ))
+            .arg("/dev/null")
+            .stdin(std::process::Stdio::null())
+            .output()
+            .unwrap()
+    };
+    let o = tty("");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("exit=2"), "{text}");
+    assert!(
+        text.contains("brdfpack:") && text.contains("terminal"),
+        "{text}"
+    );
+    assert!(!text.contains("BPK"), "{text}");
+    let o = tty("--force-terminal");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("exit=0"), "{text}");
+}
+
+#[test]
+fn thousands_of_spectral_channels_are_refused_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    let n = 4096;
+    let wl: Vec<String> = (0..n)
+        .map(|i| format!("{}", 380.0 + i as f64 * 0.1))
+        .collect();
+    let albedo: Vec<String> = (0..n).map(|_| "0.5".to_string()).collect();
+    let spec = format!(
+        r#"{{"model":"lambert","albedo":[{}],"wavelengths_nm":[{}]}}"#,
+        albedo.join(","),
+        wl.join(",")
+    );
+    for cmd in ["tabulate", "convert", "compress"] {
+        let o = run_capped(
+            dir.path(),
+            1 << 20,
+            &[cmd, &spec, "--grid", "merl", "-o", "x.bpk"],
+        );
+        assert_refused(&o, &["4096 channel", "needs about"]);
+        assert!(!dir.path().join("x.bpk").exists());
+    }
+}
+
+/// Peak resident memory (KiB) of a command, from wait4's rusage, and its exit status.
+// The child is reaped by wait4 (which std's `wait` cannot do: it drops the rusage).
+#[allow(clippy::zombie_processes)]
+fn peak_rss_kib(dir: &Path, args: &[&str]) -> (i32, i64) {
+    let child = brdfpack()
+        .current_dir(dir)
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is valid; wait4 reaps the child we own (std never waits
+    // for it afterwards: `child` is only dropped).
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as i32);
+    (libc::WEXITSTATUS(status), usage.ru_maxrss)
+}
+
+#[test]
+fn peak_memory_stays_within_twice_the_table_plus_64_mb() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // 128 × 128 × 256 cells × 3 channels: 4.2 M cells, 64 MiB of f32 and 4 MiB of flags.
+    let grid = "halfdiff3:128x128x256";
+    tabulate(
+        d,
+        "big.bpk",
+        "ggx:alpha=0.3,fresnel=au",
+        grid,
+        &["--codec", "zstd-f32:level=1"],
+    );
+    let table_kib: i64 = 128 * 128 * 256 * (3 * 4 + 1) / 1024;
+    let readers_bound = 2 * table_kib + 64 * 1024;
+    // `check` also holds its `cells` set: a pair, a weight and two values per valid cell
+    // (brdfpack::check::cells_set_bytes, counted against the budget up front).
+    let cells_kib = brdfpack::check::cells_set_bytes(128 * 128 * 256, 3) as i64 / 1024;
+    for args in [
+        &["inspect", "big.bpk"][..],
+        &["eval", "big.bpk", "--wi", "0,0,1", "--wo", "0.3,0,0.9"],
+        &["convert", "big.bpk", "--format", "exr", "-o", "big.exr"],
+        &["inspect", "big.exr"],
+        &[
+            "check",
+            "big.bpk",
+            "--against",
+            "ggx:alpha=0.3,fresnel=au",
+            "--samples",
+            "1000",
+        ],
+    ] {
+        let bound = match args[0] {
+            "check" => table_kib + cells_kib + 64 * 1024,
+            _ => readers_bound,
+        };
+        let (code, kib) = peak_rss_kib(d, args);
+        assert_eq!(code, 0, "{args:?}");
+        println!(
+            "{args:?}: peak RSS {} MiB (bound {} MiB)",
+            kib / 1024,
+            bound / 1024
+        );
+        assert!(kib <= bound, "{args:?}: peak RSS {kib} KiB > {bound} KiB");
+        // The same command under an address-space cap: refused work must not be attempted.
+        let o = run_capped(d, (4 * bound + 1024 * 1024) as u64, args);
+        assert!(
+            o.status.success(),
+            "{args:?} under ulimit -v: {}",
+            stderr(&o)
+        );
+    }
 }

@@ -532,7 +532,7 @@ fn semantic_errors_are_refused() {
                     FieldData::f32("sigma", vec![2, 2], &[1.0, 0.0, 1.0, 0.5]),
                 )
             }),
-            "field `sigma`: value 0, expected > 0",
+            "field `sigma`: value #1 is 0e0, expected a normal positive number",
         ),
         (
             Box::new(|f| {

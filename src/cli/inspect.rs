@@ -126,8 +126,10 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
             outln!(
                 "values: {} entries per channel, range {:e} .. {:e}",
                 info.entries_per_channel,
-                info.value_range[0],
-                info.value_range[1]
+                // The file's values are f32: their shortest f32 form (-1.5e-1, not
+                // -1.5000000596046448e-1).
+                info.value_range[0] as f32,
+                info.value_range[1] as f32
             );
             outln!(
                 "negative entries per channel: {:?} (passed through by eval, as the reference \

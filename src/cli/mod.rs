@@ -131,6 +131,9 @@ pub fn main() -> i32 {
         Ok(None) => {}
         Err(e) => return report_error(&e.into()),
     }
+    if let Err(e) = crate::memory::check_thread_env() {
+        return report_error(&e.into());
+    }
     crate::io::atomic::allow_binary_to_terminal(cli.force_terminal);
     let result = match cli.command {
         Command::Eval(a) => eval::run(a),

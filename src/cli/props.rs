@@ -1,6 +1,6 @@
 //! `brdfpack props`: positivity, reciprocity, isotropy and directional albedo of a source.
 
-use crate::props::{PropsOptions, PropsReport, Symmetry, props};
+use crate::props::{EnergyVerdict, PropsOptions, PropsReport, Symmetry, props};
 use clap::Args;
 use std::io::Write;
 
@@ -13,11 +13,15 @@ Report the physical properties of a model or table:
   albedo       a(θi) = ∫ f cos θo dωo at θi = 0, 5.67, ..., 85° (φi = 0, and 90° when the
                source is anisotropic), by a half-vector quadrature accurate to 1e-4 with a
                per-angle error estimate (docs/props.md)
-  energy       max albedo <= 1 + max(error estimate, 1e-4)
+  energy       max albedo <= 1 + max(error estimate, 1e-4); \"unresolved\" when an error
+               estimate above 0.1 leaves the albedo possibly above 1
 The random pairs are uniform in solid angle over the upper hemisphere from --seed.
+In --json, a non-finite number is the string \"inf\", \"-inf\" or \"nan\" (never null).
 
-Exit status: 0 when every property holds, 1 when one fails (non-finite or negative values, a
-reciprocity or isotropy the source promises but does not have, albedo above 1), 2 on bad input.";
+Exit status: 0 when every property holds, 1 when one fails (negative values, a reciprocity or
+isotropy the source promises but does not have, albedo above 1 or unresolved), 2 on bad input,
+including a source that gives non-finite values or a non-finite albedo (the report is printed
+first).";
 
 #[derive(Args, Debug)]
 pub struct PropsArgs {
@@ -57,7 +61,32 @@ pub fn run(args: PropsArgs) -> anyhow::Result<i32> {
     out.write_all(&text)
         .and_then(|_| out.flush())
         .map_err(super::stdout_error)?;
+    // Non-finite values come from the source's data or parameters: the input is at fault.
+    let nonfinite = report.positivity.nonfinite;
+    if nonfinite > 0 || report.energy.verdict == EnergyVerdict::NonFinite {
+        return Err(crate::Error::Input(format!(
+            "source {:?}: gives {nonfinite} non-finite value(s) over {} pairs; albedo {} at \
+             θi {:.2}°",
+            args.source,
+            report.positivity.pairs,
+            number(report.energy.max_albedo),
+            report.energy.at_theta_i_deg
+        ))
+        .into());
+    }
     Ok(if report.failures.is_empty() { 0 } else { 1 })
+}
+
+/// A value for the text report: fixed notation in the ordinary range, short scientific
+/// notation beyond it (a value of 1e30 would otherwise print 31 digits), `inf`/`NaN` as is.
+fn number(x: f64) -> String {
+    if x.is_finite() && (x == 0.0 || (1e-4..1e4).contains(&x.abs())) {
+        format!("{x:.6}")
+    } else if x.is_finite() {
+        format!("{x:.4e}")
+    } else {
+        format!("{x}")
+    }
 }
 
 fn yes_no(b: bool) -> &'static str {
@@ -103,18 +132,28 @@ fn write_table<W: Write>(out: &mut W, r: &PropsReport) -> std::io::Result<()> {
     )?;
     writeln!(out, "reciprocity  {}", symmetry_line(&r.reciprocity))?;
     writeln!(out, "isotropy     {}", symmetry_line(&r.isotropy))?;
+    let label = match e.verdict {
+        EnergyVerdict::Conserves => "max albedo",
+        EnergyVerdict::Exceeds => "max albedo",
+        EnergyVerdict::Unresolved => "albedo",
+        EnergyVerdict::NonFinite => "albedo",
+    };
     writeln!(
         out,
-        "energy       max albedo {:.6} at θi {:.2}° φi {:.0}° ({}), tolerance {:.1e}: {}",
-        e.max_albedo,
+        "energy       {label} {} ± {:.1e} at θi {:.2}° φi {:.0}° ({}): {}",
+        number(e.max_albedo),
+        e.tolerance,
         e.at_theta_i_deg,
         e.at_phi_i_deg,
         r.channels.get(e.channel).map(String::as_str).unwrap_or("?"),
-        e.tolerance,
-        if e.conserves {
-            "conserves"
-        } else {
-            "EXCEEDS 1"
+        match e.verdict {
+            EnergyVerdict::Conserves => "conserves".to_string(),
+            EnergyVerdict::Exceeds => "EXCEEDS 1".to_string(),
+            EnergyVerdict::Unresolved => format!(
+                "UNRESOLVED (error estimate above {}: conservation not shown)",
+                crate::props::ALBEDO_UNRESOLVED
+            ),
+            EnergyVerdict::NonFinite => "NOT FINITE".to_string(),
         }
     )?;
     if let Some(n) = r.htsg_terms {
@@ -133,8 +172,8 @@ fn write_table<W: Write>(out: &mut W, r: &PropsReport) -> std::io::Result<()> {
     writeln!(out, "{header}")?;
     for row in &r.albedo {
         let mut line = format!("{:>8.2} {:>6.0}", row.theta_i_deg, row.phi_i_deg);
-        for a in &row.albedo {
-            line.push_str(&format!(" {a:>10.6}"));
+        for &a in &row.albedo {
+            line.push_str(&format!(" {:>10}", number(a)));
         }
         let err = row.error.iter().copied().fold(0.0, f64::max);
         line.push_str(&format!(" {err:>9.1e} {:>8}", row.evaluations));

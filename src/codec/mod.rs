@@ -550,22 +550,9 @@ impl CodecSpec {
         let dims = layout.dims();
         let n_valid = layout.valid.iter().filter(|&&v| v).count();
         match self {
-            CodecSpec::ZstdF32 { level } => {
-                let want = values
-                    .checked_mul(4)
-                    .ok_or_else(|| Error::input("table too large"))?;
-                let raw = Zstd { level: *level }.decompress(payload, want)?;
-                if raw.len() != want {
-                    return Err(Error::input(format!(
-                        "zstd-f32 payload: {} bytes decompressed, the table needs {want}",
-                        raw.len()
-                    )));
-                }
-                for (o, b) in out.iter_mut().zip(raw.chunks_exact(4)) {
-                    *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                }
-                Ok(())
-            }
+            CodecSpec::ZstdF32 { level } => Zstd { level: *level }
+                .decompress_f32_into(payload, out)
+                .map_err(|e| Error::input(format!("zstd-f32 {e}"))),
             CodecSpec::Lossless {
                 predict, entropy, ..
             } => {

@@ -259,20 +259,18 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     let h = parse_header(secs[0].1, path)?;
     let in_file = |e: Error| Error::invalid_file(path, e.to_string());
     let grid = Grid::from_desc(&h.grid).map_err(in_file)?;
+    let declared = h.channels.names().len();
+    if declared > MAX_CHANNELS {
+        return Err(Error::invalid_file(
+            path,
+            format!("{declared} channels exceed the limit {MAX_CHANNELS}"),
+        ));
+    }
     let channels = Channels::named(
         h.channels.names().to_vec(),
         h.channels.wavelengths_nm().map(|w| w.to_vec()),
     )
     .map_err(in_file)?;
-    if channels.len() > MAX_CHANNELS {
-        return Err(Error::invalid_file(
-            path,
-            format!(
-                "{} channels exceed the limit {MAX_CHANNELS}",
-                channels.len()
-            ),
-        ));
-    }
     let cells = grid.cells();
     // Before the mask or any sample is allocated: the decoded table plus the decoder's
     // scratch (and the exact f64 values, raw bytes and parsed), against the budget.

@@ -147,7 +147,7 @@ impl RglBsdf {
         let vndf_values = finite_values(&file, vndf_field)?;
         // A density: negative values would make the CDFs non-monotonic.
         if let Some(v) = vndf_values.iter().find(|v| **v < 0.0) {
-            return Err(file.field_error("vndf", format!("negative density {v}, expected ≥ 0")));
+            return Err(file.field_error("vndf", format!("negative density {v:e}, expected ≥ 0")));
         }
         let vndf = VndfWarp::build(&vndf_values, n_phi * n_theta, h, w)
             .map_err(|m| file.field_error("vndf", m))?;
@@ -207,6 +207,7 @@ impl RglBsdf {
                 ));
             }
         };
+        check_peak(&file, data_name, range, jacobian.then_some((&ndf, &sigma)))?;
 
         Ok(RglBsdf {
             info: RglInfo {
@@ -409,10 +410,89 @@ fn grid2(file: &TensorFile, name: &str, positive: bool) -> Result<Grid2> {
         }
     };
     let values = finite_values(file, field)?;
-    if positive && let Some(v) = values.iter().find(|v| **v <= 0.0) {
-        return Err(file.field_error(name, format!("value {v}, expected > 0")));
+    // σ is a divisor: a subnormal (below 1.2e-38) is no projected area of a surface, and
+    // dividing by it overflows f32 at once.
+    if positive
+        && let Some((i, v)) = values
+            .iter()
+            .enumerate()
+            .find(|(_, v)| **v < f32::MIN_POSITIVE)
+    // finite: checked above
+    {
+        return Err(file.field_error(
+            name,
+            format!(
+                "value #{i} is {v:e}, expected a normal positive number (≥ {:e})",
+                f32::MIN_POSITIVE
+            ),
+        ));
     }
     Ok(Grid2::new(cols, rows, values))
+}
+
+/// Smallest cos θo at which an RGL file's values must fit f32 (θo ≈ 89.99994°): finer
+/// than any grid's cell centres, far beyond any real measurement's range of values.
+pub const MIN_COS_THETA_O: f64 = 1e-6;
+
+/// Refuses a file whose BRDF values f32 storage cannot hold: the largest |colour value|
+/// times, with the Jacobian, the largest D(m)/(4σ(wi)), divided by cos θo (f_r = eval /
+/// cos θo), must fit f32 for every cos θo ≥ [`MIN_COS_THETA_O`] (issue 20: such files were
+/// found only by the command that used a value, exit 1, with 309-digit numbers). The field
+/// named is the one with the extreme factor: the colour data, `ndf` or `sigma`.
+fn check_peak(
+    file: &TensorFile,
+    data_name: &str,
+    range: [f64; 2],
+    jacobian: Option<(&Grid2, &Grid2)>,
+) -> Result<()> {
+    let colour_peak = range[0].abs().max(range[1].abs());
+    let limit = f64::from(f32::MAX) * MIN_COS_THETA_O;
+    let (ndf_max, sigma_min) = match jacobian {
+        Some((ndf, sigma)) => (
+            ndf.values().iter().fold(0f64, |m, &v| m.max(f64::from(v))),
+            sigma
+                .values()
+                .iter()
+                .fold(f64::INFINITY, |m, &v| m.min(f64::from(v))),
+        ),
+        None => (1.0, 0.25),
+    };
+    let scale = ndf_max / (4.0 * sigma_min);
+    let peak = colour_peak * scale;
+    if peak > limit {
+        // Name the factor furthest from the ordinary (D, 1/σ and colours are O(1) for real
+        // surfaces).
+        let extremes = [
+            (data_name, "largest |value|", colour_peak, colour_peak),
+            ("ndf", "largest value", ndf_max, ndf_max),
+            ("sigma", "smallest value", sigma_min, 1.0 / sigma_min),
+        ];
+        let (field, what, value, _) = extremes
+            .into_iter()
+            .fold(extremes[0], |a, b| if b.3 > a.3 { b } else { a });
+        // The factors are f32 values of the file: their shortest f32 form (3e38, not
+        // 3.0000000054977558e38).
+        let short = |x: f64| x as f32;
+        let factors = match jacobian {
+            Some(_) => format!(
+                " (colour {:e} × ndf {:e} / (4 × sigma {:e}))",
+                short(colour_peak),
+                short(ndf_max),
+                short(sigma_min)
+            ),
+            None => String::new(),
+        };
+        return Err(file.field_error(
+            field,
+            format!(
+                "{what} {:e}: the BRDF would reach {peak:.3e} / cos θo{factors}, beyond f32 \
+                 storage ({:e}) already at cos θo = {MIN_COS_THETA_O:e}",
+                short(value),
+                f32::MAX
+            ),
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

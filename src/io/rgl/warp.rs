@@ -139,6 +139,11 @@ impl Grid2 {
         }
     }
 
+    /// The stored values, row-major.
+    pub fn values(&self) -> &[f32] {
+        &self.data
+    }
+
     /// Whether the value depends on y at all.
     pub fn varies_along_y(&self) -> bool {
         self.varies_along_y
