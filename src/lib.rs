@@ -21,6 +21,7 @@ pub mod model;
 pub mod plan;
 pub mod plot;
 pub mod props;
+pub mod reads;
 pub mod source;
 pub mod spectral;
 pub mod table;

@@ -36,6 +36,12 @@ impl Source {
     /// spec is never shadowed by a file of the same name in the working directory: `./lambert`
     /// (a name starting with `./`, `../` or `/`) always means the file.
     pub fn open(spec: &str) -> Result<Source> {
+        Source::open_recording(spec, &mut crate::reads::ReadSet::new())
+    }
+
+    /// [`Source::open`], recording every file read in `reads` (the source file, or a model
+    /// spec's `@file.json` and data files) for depfiles and build caches.
+    pub fn open_recording(spec: &str, reads: &mut crate::reads::ReadSet) -> Result<Source> {
         let path = Path::new(spec);
         let explicit_path = spec == "-"
             || spec.starts_with("./")
@@ -44,7 +50,7 @@ impl Source {
         let parsed = if explicit_path {
             None
         } else {
-            match Model::parse(spec) {
+            match Model::parse_recording(spec, reads) {
                 Ok(m) => return Ok(Source::Model(m)),
                 Err(e) => Some(e),
             }
@@ -52,6 +58,7 @@ impl Source {
         // Any existing non-directory: regular files, and devices, FIFOs, /dev/stdin.
         if spec == "-" || path.exists() {
             let bytes = atomic::read_input(path)?;
+            reads.record(path);
             return match io::detect(&bytes, path) {
                 Format::Rgl => Ok(Source::Measured(RglBsdf::from_bytes(
                     &bytes,

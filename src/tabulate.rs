@@ -17,8 +17,19 @@ pub struct TabulateOptions {
     /// Allow a source that is not reciprocal on `halfdiff3`, whose φd fold assumes
     /// f(wi, wo) = f(wo, wi) (stated in the table's provenance).
     pub allow_nonreciprocal: bool,
-    /// Show a progress bar (callers pass true only when stderr is a terminal).
-    pub progress: bool,
+    /// Called with (cells done, cells in all) as the generic path advances; the CLI draws a
+    /// bar from it on a terminal. The library never prints.
+    pub progress: Option<CellProgress>,
+}
+
+/// A progress callback: (cells done, cells in all). Called from worker threads.
+#[derive(Clone)]
+pub struct CellProgress(pub std::sync::Arc<dyn Fn(u64, u64) + Send + Sync>);
+
+impl std::fmt::Debug for CellProgress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("CellProgress")
+    }
 }
 
 /// Cells per parallel work item: large enough to amortise scheduling, small enough to
@@ -134,16 +145,7 @@ fn tabulate_generic(
     let c = src.channels().len();
     let cells = grid.cells();
     let d = grid.axes().len();
-    let bar = if opts.progress {
-        let b = indicatif::ProgressBar::new(cells as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("tabulating {bar:40} {percent}% {eta}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Some(b)
-    } else {
-        None
-    };
+    let done = std::sync::atomic::AtomicU64::new(0);
     data.par_chunks_mut(CHUNK_CELLS * c)
         .zip(valid.par_chunks_mut(CHUNK_CELLS))
         .enumerate()
@@ -180,14 +182,12 @@ fn tabulate_generic(
                 }
                 *okj = true;
             }
-            if let Some(b) = &bar {
-                b.inc(ok.len() as u64);
+            if let Some(p) = &opts.progress {
+                let n = done.fetch_add(ok.len() as u64, std::sync::atomic::Ordering::Relaxed);
+                (p.0)(n + ok.len() as u64, cells as u64);
             }
             Ok(())
         })?;
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
     Ok(())
 }
 

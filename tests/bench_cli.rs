@@ -34,9 +34,7 @@ fn quick_bench_writes_parseable_files() {
     let dir = tempfile::tempdir().unwrap();
     let out = Command::cargo_bin("brdfpack")
         .unwrap()
-        .args([
-            "bench", "--quick", "--runs", "1", "--pairs", "20000", "--out",
-        ])
+        .args(["bench", "--quick", "--runs", "1", "--pairs", "20000", "-o"])
         .arg(dir.path())
         .env("BRDFPACK_SHARED", dir.path().join("absent"))
         .assert()

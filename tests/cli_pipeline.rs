@@ -121,7 +121,21 @@ fn compress_to_stdout_writes_only_the_file() {
         .assert()
         .success();
     assert_eq!(piped.stdout, std::fs::read(&file).unwrap());
-    assert!(String::from_utf8_lossy(&piped.stderr).contains("codec: "));
+    // Quiet by default (issue #22); -v puts the report on stderr, never after the bytes.
+    assert!(
+        piped.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&piped.stderr)
+    );
+    let verbose = brdfpack()
+        .args(args("-"))
+        .arg("-v")
+        .assert()
+        .success()
+        .get_output()
+        .clone();
+    assert_eq!(verbose.stdout, piped.stdout);
+    assert!(String::from_utf8_lossy(&verbose.stderr).contains("codec: "));
     brdfpack()
         .args(["inspect", "-"])
         .write_stdin(piped.stdout)

@@ -34,10 +34,13 @@ fn compress_with_a_budget_writes_a_file_that_meets_it() {
             "log_rmse=0.01,p99_rel_core=0.2",
             "--samples",
             "4096",
+            "-v",
         ])
         .assert()
         .success();
-    let stdout = String::from_utf8(a.get_output().stdout.clone()).unwrap();
+    // The human report is on stderr with -v (quiet by default, issue #22).
+    assert!(a.get_output().stdout.is_empty());
+    let stdout = String::from_utf8(a.get_output().stderr.clone()).unwrap();
     assert!(stdout.contains("\"kind\":\"dct_context\""), "{stdout}");
     assert!(
         stdout.contains("met by the written file against the input"),
@@ -238,10 +241,10 @@ fn compress_with_a_residual_round_trips_within_its_bound_through_the_cli() {
                     "-o",
                     out.to_str().unwrap(),
                 ])
-                .args(["--codec", codec, "--samples", "2048"])
+                .args(["--codec", codec, "--samples", "2048", "-v"])
                 .assert()
                 .success();
-            let stdout = String::from_utf8(a.get_output().stdout.clone()).unwrap();
+            let stdout = String::from_utf8(a.get_output().stderr.clone()).unwrap();
             assert!(
                 stdout.contains(&format!("\"kind\":\"{kind}\"")),
                 "{codec}: {stdout}"

@@ -71,6 +71,8 @@ fn commands(dir: &Path) -> Vec<(&'static str, Vec<String>)> {
                 "256",
                 "-o",
                 &o("p.bpk"),
+                // Quiet by default (issue #22): the JSON report is what goes to stdout.
+                "--json",
             ]),
         ),
         (
@@ -84,6 +86,7 @@ fn commands(dir: &Path) -> Vec<(&'static str, Vec<String>)> {
                 "256",
                 "-o",
                 &o("c.bpk"),
+                "--json",
             ]),
         ),
         ("eval", v(&["eval", &t, "--wi", "0,0,1", "--wo", "0.3,0,1"])),

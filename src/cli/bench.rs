@@ -32,9 +32,20 @@ pub struct BenchArgs {
     /// Pairs per lookup batch of the speed workload.
     #[arg(long, default_value_t = 1_000_000)]
     pub pairs: usize,
-    /// Folder for the output files.
-    #[arg(long, default_value = "bench-out")]
+    /// Folder for the output files (`--out` is an older name).
+    #[arg(
+        short = 'o',
+        long = "output",
+        alias = "out",
+        default_value = "bench-out"
+    )]
     pub out: PathBuf,
+    /// Nothing on stderr but errors (no progress lines).
+    #[arg(short, long, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// Machine description and every finished row on stderr (the default).
+    #[arg(short, long)]
+    pub verbose: bool,
     /// The shared reference folder (its data/rgl/*.bsdf join the matrix); default
     /// $BRDFPACK_SHARED, else ../shared when it exists.
     #[arg(long)]
@@ -84,11 +95,20 @@ pub fn run(a: BenchArgs) -> anyhow::Result<i32> {
 }
 
 fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
+    let quiet = a.quiet;
+    // Progress and notes on stderr unless -q.
+    macro_rules! say {
+        ($($t:tt)*) => {
+            if !quiet {
+                eprintln!($($t)*)
+            }
+        };
+    }
     if a.zoo {
         return run_zoo(&a);
     }
     let machine = Machine::detect();
-    eprintln!("machine: {}", machine.describe());
+    say!("machine: {}", machine.describe());
     let runs = a.runs.unwrap_or(if a.quick { 3 } else { 7 }).max(1);
     let speed_only = a.speed || a.tabulate_only || a.lookup_only;
     let which = if a.tabulate_only {
@@ -106,7 +126,7 @@ fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
         speed.extend(speed_suite(runs, "lookup", a.pairs.min(100_000))?);
     }
     for r in &speed {
-        eprintln!(
+        say!(
             "{:<34} {:>9} items  median {:>9.3} ms  (min {:.3}, max {:.3}, {} runs)  {:.3e}/s",
             r.name,
             r.items,
@@ -130,8 +150,8 @@ fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
         .or_else(|| Some(PathBuf::from("../shared")).filter(|p| p.is_dir()));
     let data = shared.map(|s| s.join("data")).filter(|d| d.is_dir());
     match &data {
-        Some(d) => eprintln!("measured materials from {}", d.display()),
-        None => eprintln!("no shared data folder (--shared): analytic sources only"),
+        Some(d) => say!("measured materials from {}", d.display()),
+        None => say!("no shared data folder (--shared): analytic sources only"),
     }
     let opts = MatrixOptions {
         quick: a.quick,
@@ -140,9 +160,15 @@ fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
         shared_data: data,
     };
     let rows = run_matrix(&opts, |r| {
-        eprintln!(
+        say!(
             "{:<24} {:<48} {:<18} {:>10} B  {:>6.2} bit/sample  log_rmse {:.3e}  {:.3e} lookups/s",
-            r.source, r.grid, r.codec, r.bytes, r.bits_per_sample, r.log_rmse, r.lookups_per_s
+            r.source,
+            r.grid,
+            r.codec,
+            r.bytes,
+            r.bits_per_sample,
+            r.log_rmse,
+            r.lookups_per_s
         )
     })?;
     std::fs::create_dir_all(&a.out).map_err(|e| crate::Error::io(&a.out, e))?;
@@ -167,13 +193,22 @@ fn run_in_pool(a: BenchArgs) -> anyhow::Result<i32> {
     for (name, text) in files {
         let p = a.out.join(name);
         write_output(&p, text.as_bytes())?;
-        eprintln!("wrote {}", p.display());
+        say!("wrote {}", p.display());
     }
     Ok(0)
 }
 
 /// `bench --zoo`: the encoder's acceptance run (docs/compression.md, "The material zoo").
 fn run_zoo(a: &BenchArgs) -> anyhow::Result<i32> {
+    let quiet = a.quiet;
+    // Progress and notes on stderr unless -q.
+    macro_rules! say {
+        ($($t:tt)*) => {
+            if !quiet {
+                eprintln!($($t)*)
+            }
+        };
+    }
     use crate::plan::budget::Budget;
     use crate::plan::zoo;
     let effort = crate::plan::rate::Effort::parse(&a.zoo_effort)?;
@@ -222,9 +257,11 @@ fn run_zoo(a: &BenchArgs) -> anyhow::Result<i32> {
     for (name, spec) in &materials {
         for (bname, budget) in &budgets {
             let r = zoo::run_one(name, spec, bname, budget, effort, a.zoo_seeds, a.zoo_pairs)?;
-            eprintln!(
+            say!(
                 "zoo: {name} {bname}: {} bytes, {:.2} s, holds {}",
-                r.bytes, r.plan_s, r.holds
+                r.bytes,
+                r.plan_s,
+                r.holds
             );
             if a.json {
                 println!("{}", serde_json::to_string(&r)?);

@@ -90,6 +90,11 @@ pub struct CheckArgs {
     pub plot: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub picture: super::plot::PictureArgs,
+    #[command(flatten)]
+    pub report: super::common::ReportTarget,
+    /// The reference seen with the scene's channels (the domain is the candidate table's).
+    #[command(flatten)]
+    pub scene: super::common::SceneArgs,
 }
 
 pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
@@ -113,7 +118,8 @@ pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
     let cand = cand.into_brdf(a.interp)?;
     let reference = Source::open(&a.against)?;
     let reference_table = table_of(&reference);
-    let reference = reference.into_brdf(a.interp)?;
+    let scene = a.scene.load(&mut crate::reads::ReadSet::new())?;
+    let reference = scene.restrict_source(reference.into_brdf(a.interp)?)?;
     let report = check(
         reference.as_ref(),
         cand.as_ref(),

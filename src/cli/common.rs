@@ -146,11 +146,136 @@ impl SamplingArgs {
         }
     }
 
-    pub fn options(&self, progress: bool) -> crate::tabulate::TabulateOptions {
+    pub fn options(
+        &self,
+        progress: Option<crate::tabulate::CellProgress>,
+    ) -> crate::tabulate::TabulateOptions {
         crate::tabulate::TabulateOptions {
             allow_anisotropic: self.allow_anisotropic,
             allow_nonreciprocal: self.allow_nonreciprocal,
             progress,
         }
     }
+}
+
+/// A progress bar on stderr that names the stage and counts cells; drawn only when stderr is
+/// a terminal and the command is not quiet (nothing at all otherwise).
+#[derive(Clone)]
+pub struct Bar(Option<indicatif::ProgressBar>);
+
+impl Bar {
+    pub fn new(quiet: bool) -> Bar {
+        if quiet || !stderr_is_terminal() {
+            return Bar(None);
+        }
+        let b = indicatif::ProgressBar::new_spinner();
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{spinner} {msg} [{elapsed}]")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+        );
+        b.enable_steady_tick(std::time::Duration::from_millis(120));
+        Bar(Some(b))
+    }
+
+    /// A stage of a command: the message shown beside the spinner.
+    pub fn stage(&self, stage: &str) {
+        if let Some(b) = &self.0 {
+            b.set_message(stage.to_string());
+        }
+    }
+
+    /// The library's tabulation callback, shown as `tabulating done/total cells`.
+    pub fn cells(&self) -> Option<crate::tabulate::CellProgress> {
+        let b = self.0.clone()?;
+        Some(crate::tabulate::CellProgress(std::sync::Arc::new(
+            move |done, total| {
+                b.set_message(format!("tabulating {done}/{total} cells"));
+            },
+        )))
+    }
+
+    pub fn finish(&self) {
+        if let Some(b) = &self.0 {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// `--depfile FILE`: a Make/Ninja depfile naming the outputs and every file read.
+#[derive(Args, Debug, Clone, Default)]
+pub struct DepfileArgs {
+    /// Write a Make/Ninja depfile (`deps = gcc`) listing every file this run read (sources,
+    /// `@spec.json`, spectral CSVs, scenes, manifests) as dependencies of the output.
+    #[arg(long, value_name = "FILE", help_heading = "Build")]
+    pub depfile: Option<std::path::PathBuf>,
+}
+
+impl DepfileArgs {
+    /// Writes the depfile (atomically) when one was asked for.
+    pub fn write(&self, outputs: &[&Path], reads: &crate::reads::ReadSet) -> Result<()> {
+        if let Some(d) = &self.depfile {
+            let text = crate::reads::depfile_text(outputs.iter().copied(), reads);
+            atomic::write_output(d, text.as_bytes())?;
+        }
+        Ok(())
+    }
+}
+
+/// A scene's needs (`--scene FILE` and the flags that override it; docs/build.md).
+#[derive(Args, Debug, Clone, Default)]
+pub struct SceneArgs {
+    /// Scene file (TOML or JSON): theta_i_max, theta_o_max, channels, isotropic, max_error.
+    /// Only that domain and those channels are stored and checked (docs/build.md).
+    #[arg(long, value_name = "FILE", help_heading = "Scene")]
+    pub scene: Option<std::path::PathBuf>,
+    /// Largest light angle from the normal the scene needs (degrees).
+    #[arg(long, value_name = "DEG", help_heading = "Scene")]
+    pub theta_i_max: Option<f64>,
+    /// Largest view angle from the normal the scene needs (degrees).
+    #[arg(long, value_name = "DEG", help_heading = "Scene")]
+    pub theta_o_max: Option<f64>,
+    /// Channels to keep: `rgb`, `luminance`, names separated by `/` (`R/G`), or a band of
+    /// a spectral source (`400-700nm`).
+    #[arg(long, value_name = "SET", help_heading = "Scene")]
+    pub channels: Option<String>,
+    /// The scene needs an isotropic material only (an anisotropic source may be sampled on
+    /// an isotropic grid; recorded in the file).
+    #[arg(long, help_heading = "Scene")]
+    pub isotropic: bool,
+}
+
+impl SceneArgs {
+    /// The scene: the file's fields, overridden by the flags; the file is recorded in `reads`.
+    pub fn load(&self, reads: &mut crate::reads::ReadSet) -> Result<crate::plan::scene::Scene> {
+        use crate::plan::scene::Scene;
+        let file = match &self.scene {
+            Some(p) => Scene::load(p, reads)?,
+            None => Scene::default(),
+        };
+        let flags = Scene {
+            theta_i_max: self.theta_i_max,
+            theta_o_max: self.theta_o_max,
+            channels: self.channels.clone(),
+            isotropic: self.isotropic.then_some(true),
+            max_error: None,
+        };
+        flags.validate("flags")?;
+        Ok(file.overridden_by(&flags))
+    }
+}
+
+/// `-o`, `-q`, `-v` of the commands whose output is a report or text on stdout (check,
+/// inspect, eval, props, models, completions, man): the report can go to a file instead.
+#[derive(Args, Debug, Clone, Default)]
+pub struct ReportTarget {
+    /// Write the report (stdout's text) to FILE instead of stdout, atomically, when the
+    /// command finishes (also when a check fails, exit 1).
+    #[arg(short, long, value_name = "FILE", help_heading = "Report")]
+    pub output: Option<std::path::PathBuf>,
+    /// Print nothing; the exit code says how it went (errors still print on stderr).
+    #[arg(short, long, conflicts_with = "verbose", help_heading = "Report")]
+    pub quiet: bool,
+    /// Also print the command's time on stderr.
+    #[arg(short, long, help_heading = "Report")]
+    pub verbose: bool,
 }

@@ -1,7 +1,7 @@
 //! `brdfpack compress`: re-encode a table with a given codec or the smallest codec meeting an
 //! error budget, and print the choice and its measured error.
 
-use super::common::{Lookup, SamplingArgs, Source, stderr_is_terminal};
+use super::common::{Bar, DepfileArgs, Lookup, SamplingArgs, SceneArgs, Source};
 use crate::Error;
 use crate::check::SampleSet;
 use crate::codec::CodecRequest;
@@ -10,10 +10,13 @@ use crate::io::{atomic, native};
 use crate::plan::budget::Budget;
 use crate::plan::pack::{PackInput, PackSettings, plan};
 use crate::plan::rate::Effort;
+use crate::plan::scene::Scene;
 use crate::plan::search::Evaluator;
+use crate::reads::ReadSet;
 use crate::table::Table;
 use crate::tabulate::tabulate;
 use clap::Args;
+use serde_json::json;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -50,11 +53,31 @@ pub struct CompressArgs {
     /// With `--max-error`: time spent for a smaller file, `fast`, `default` or `max`.
     #[arg(long, default_value = "default")]
     pub effort: String,
+    /// The report (codec, size, error) as one JSON object on stdout (stderr with `-o -`).
+    #[arg(long)]
+    pub json: bool,
+    /// Nothing but errors (no progress bar).
+    #[arg(short, long, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// The human report on stderr.
+    #[arg(short, long)]
+    pub verbose: bool,
+    #[command(flatten)]
+    pub depfile: DepfileArgs,
+    #[command(flatten)]
+    pub scene: SceneArgs,
 }
 
 /// Opens the input as a table; a model or measured source is tabulated on `grid` first.
-fn read_table(input: &str, grid: Option<&str>, symmetry: &SamplingArgs) -> anyhow::Result<Table> {
-    match symmetry.apply(Source::open(input)?) {
+fn read_table(
+    input: &str,
+    grid: Option<&str>,
+    symmetry: &SamplingArgs,
+    scene: &Scene,
+    reads: &mut ReadSet,
+    bar: &Bar,
+) -> anyhow::Result<Table> {
+    match symmetry.apply(Source::open_recording(input, reads)?) {
         Source::Table(t) => {
             if let Some(g) = grid {
                 return Err(Error::input(format!(
@@ -65,13 +88,11 @@ fn read_table(input: &str, grid: Option<&str>, symmetry: &SamplingArgs) -> anyho
             Ok(t)
         }
         other => {
-            let src = other.into_brdf(Lookup::Linear)?;
-            let grid = parse_grid_spec(grid.unwrap_or("merl"))?;
-            Ok(tabulate(
-                src.as_ref(),
-                &grid,
-                &symmetry.options(stderr_is_terminal()),
-            )?)
+            let src = scene.restrict_source(other.into_brdf(Lookup::Linear)?)?;
+            let grid = scene.restrict_grid(&parse_grid_spec(grid.unwrap_or("merl"))?)?;
+            let t = tabulate(src.as_ref(), &grid, &symmetry.options(bar.cells()));
+            bar.finish();
+            Ok(t?)
         }
     }
 }
@@ -79,18 +100,43 @@ fn read_table(input: &str, grid: Option<&str>, symmetry: &SamplingArgs) -> anyho
 pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
     super::check::validate_samples(a.samples)?;
     let effort = Effort::parse(&a.effort)?;
-    if let Some(b) = &a.max_error {
-        return run_budget(&a, Budget::parse(b)?, effort);
+    let mut reads = ReadSet::new();
+    let scene = a.scene.load(&mut reads)?;
+    let mut symmetry = a.symmetry.clone();
+    if scene.isotropic == Some(true) {
+        symmetry.allow_anisotropic = true;
     }
-    let table = read_table(&a.input, a.grid.as_deref(), &a.symmetry)?;
+    if let Some(b) = a.max_error.as_deref().or(scene.max_error.as_deref()) {
+        return run_budget(&a, Budget::parse(b)?, effort, &scene, &symmetry, reads);
+    }
+    let bar = Bar::new(a.quiet);
+    let table = read_table(
+        &a.input,
+        a.grid.as_deref(),
+        &symmetry,
+        &scene,
+        &mut reads,
+        &bar,
+    )?;
     let set = SampleSet::uniform(a.samples, a.seed);
     let req = CodecRequest::parse(a.codec.as_deref().unwrap_or("lossless"))?;
     let spec = req.resolve(&table)?;
     let measured = Evaluator::new(&table, &set)?.measure(&spec)?;
     let bytes = native::to_bytes(&table, &measured.spec)?;
     atomic::write_output(&a.output, &bytes)?;
+    a.depfile.write(&[a.output.as_path()], &reads)?;
     let raw = table.data().len() * 4;
     let m = &measured.metrics;
+    let machine = json!({
+        "output": a.output.display().to_string(),
+        "codec": measured.spec,
+        "bytes": bytes.len(),
+        "payload_bytes": measured.payload.len(),
+        "raw_f32_bytes": raw,
+        "samples": a.samples,
+        "seed": a.seed,
+        "metrics": m,
+    });
     use std::fmt::Write as _;
     let mut r = String::new();
     writeln!(r, "codec: {}", measured.spec.summary())?;
@@ -113,19 +159,28 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
         "  log_rmse {:.4e}  p99_rel_core {:.4e}  rel_rmse_core {:.4e}  rmse {:.4e}  max_rel {:.4e}  nonfinite {}  negative {}",
         m.log_rmse, m.p99_rel_core, m.rel_rmse_core, m.rmse, m.max_rel, m.nonfinite, m.negative
     )?;
-    report(&a, &r)
+    report(&a, &r, &machine)
 }
 
 /// `--max-error`: the smallest file whose error against the input (a table against itself,
 /// a model or measured file against the source) meets the budget ([`crate::plan::pack`]).
-fn run_budget(a: &CompressArgs, budget: Budget, effort: Effort) -> anyhow::Result<i32> {
+fn run_budget(
+    a: &CompressArgs,
+    budget: Budget,
+    effort: Effort,
+    scene: &Scene,
+    symmetry: &SamplingArgs,
+    mut reads: ReadSet,
+) -> anyhow::Result<i32> {
+    let bar = Bar::new(a.quiet);
+    let progress = |stage: &str| bar.stage(stage);
     let settings = PackSettings {
         budget: budget.clone(),
         effort,
         check_samples: a.samples,
         check_seed: a.seed,
     };
-    let source = a.symmetry.apply(Source::open(&a.input)?);
+    let source = symmetry.apply(Source::open_recording(&a.input, &mut reads)?);
     let planned = match source {
         Source::Table(t) => {
             if let Some(g) = &a.grid {
@@ -135,26 +190,42 @@ fn run_budget(a: &CompressArgs, budget: Budget, effort: Effort) -> anyhow::Resul
                 ))
                 .into());
             }
-            plan(PackInput::Table(&t), &settings, &|_| {})?
+            plan(PackInput::Table(&t), &settings, &progress)
         }
         other => {
-            let src = other.into_brdf(Lookup::Linear)?;
-            let grid = parse_grid_spec(a.grid.as_deref().unwrap_or("merl"))?;
+            let src = scene.restrict_source(other.into_brdf(Lookup::Linear)?)?;
+            let grid =
+                scene.restrict_grid(&parse_grid_spec(a.grid.as_deref().unwrap_or("merl"))?)?;
             plan(
                 PackInput::Source {
                     source: src.as_ref(),
                     grid: Some(grid),
-                    options: a.symmetry.options(false),
+                    options: symmetry.options(None),
                 },
                 &settings,
-                &|_| {},
-            )?
+                &progress,
+            )
         }
     };
+    bar.finish();
+    let planned = planned?;
     let e = &planned.encoded;
     let bytes = native::to_bytes(&planned.table, &e.spec)?;
     atomic::write_output(&a.output, &bytes)?;
+    a.depfile.write(&[a.output.as_path()], &reads)?;
     let raw = planned.table.data().len() * 4;
+    let machine = json!({
+        "output": a.output.display().to_string(),
+        "codec": e.spec,
+        "bytes": bytes.len(),
+        "payload_bytes": e.payload.len(),
+        "raw_f32_bytes": raw,
+        "budget": budget.bounds,
+        "file": e.estimate,
+        "grid_alone": e.floor,
+        "samples": a.samples,
+        "seed": a.seed,
+    });
     let values = |m: &crate::check::Metrics| {
         budget
             .bounds
@@ -204,15 +275,22 @@ fn run_budget(a: &CompressArgs, budget: Budget, effort: Effort) -> anyhow::Resul
         "  grid alone: {} (the uncompressed table against the input)",
         values(e.floor.check.as_ref().unwrap_or(&e.floor.metrics))
     )?;
-    report(a, &r)
+    report(a, &r, &machine)
 }
 
-fn report(a: &CompressArgs, r: &str) -> anyhow::Result<i32> {
-    // With `-o -` the file's bytes are stdout: the report must not follow them there.
-    if a.output.as_os_str() == "-" {
-        eprint!("{r}");
-    } else {
-        out!("{r}");
+/// Quiet by default: the human report with -v (stderr), JSON with --json (stdout; stderr
+/// with `-o -`, whose stdout holds the file's bytes).
+fn report(a: &CompressArgs, human: &str, machine: &serde_json::Value) -> anyhow::Result<i32> {
+    if a.verbose {
+        eprint!("{human}");
+    }
+    if a.json {
+        let text = format!("{}\n", serde_json::to_string(machine)?);
+        if a.output.as_os_str() == "-" {
+            eprint!("{text}");
+        } else {
+            out!("{text}");
+        }
     }
     Ok(0)
 }

@@ -9,7 +9,6 @@ use crate::io::{FormatName, OutputFormat, atomic, encode_table};
 use crate::table::{Interp, InterpolatedTable, Table};
 use crate::tabulate::{TabulateOptions, tabulate};
 use clap::Args;
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -40,6 +39,14 @@ pub struct ConvertArgs {
     /// Say on stderr how the output was made (re-gridding, notes, size).
     #[arg(short, long)]
     pub verbose: bool,
+    /// A JSON report (output, format, bytes, grid) on stdout (stderr with `-o -`).
+    #[arg(long)]
+    pub json: bool,
+    /// Nothing but errors (no progress bar).
+    #[arg(short, long, conflicts_with = "verbose")]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub depfile: super::common::DepfileArgs,
 }
 
 /// The grid of an `.mbsdf` written from a model or a table on another grid: 1° bins.
@@ -47,10 +54,15 @@ pub const MBSDF_DEFAULT_GRID: &str = "spherical3:90x90x180";
 
 /// What the input turned out to be.
 pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
-    let input = a.symmetry.apply(Source::open(&a.input)?);
+    let mut reads = crate::reads::ReadSet::new();
+    let input = a
+        .symmetry
+        .apply(Source::open_recording(&a.input, &mut reads)?);
     let format = a.out.format.or_else(|| FormatName::from_path(&a.output));
     if format == Some(FormatName::Rgl) {
-        return super::convert_rgl::run(&a, input);
+        let code = super::convert_rgl::run(&a, input)?;
+        a.depfile.write(&[a.output.as_path()], &reads)?;
+        return Ok(code);
     }
     let grid = match (&a.grid, &input) {
         (Some(s), _) => parse_grid_spec(s)?,
@@ -67,12 +79,15 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
         (None, _) => Grid::merl(),
     };
     let output = a.out.resolve(&a.output, &grid)?;
-    let opts = a.symmetry.options(std::io::stderr().is_terminal());
+    let bar = super::common::Bar::new(a.quiet);
+    let opts = a.symmetry.options(bar.cells());
     let table = match input {
-        Source::Table(t) if *t.grid() == grid => t,
-        Source::Table(t) => regrid(t, &grid, a.interp, &opts)?,
-        other => tabulate(other.into_brdf(Lookup::Linear)?.as_ref(), &grid, &opts)?,
+        Source::Table(t) if *t.grid() == grid => Ok(t),
+        Source::Table(t) => regrid(t, &grid, a.interp, &opts),
+        other => tabulate(other.into_brdf(Lookup::Linear)?.as_ref(), &grid, &opts),
     };
+    bar.finish();
+    let table = table?;
     let table = if a.to_rgb {
         crate::spectral::spectral_to_rgb(&table)?
     } else {
@@ -81,6 +96,21 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
     let output = output.for_table(&table)?;
     let bytes = encode_table(&table, &output)?;
     atomic::write_output(&a.output, &bytes)?;
+    a.depfile.write(&[a.output.as_path()], &reads)?;
+    if a.json {
+        let text = serde_json::json!({
+            "output": a.output.display().to_string(),
+            "format": format!("{:?}", output.name()),
+            "bytes": bytes.len(),
+            "grid": grid.describe(),
+        })
+        .to_string();
+        if a.output.as_os_str() == "-" {
+            eprintln!("{text}");
+        } else {
+            outln!("{text}");
+        }
+    }
     if a.verbose {
         let exact_kept = table.exact().is_some()
             && match &output {

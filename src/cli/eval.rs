@@ -124,6 +124,11 @@ pub struct EvalArgs {
     /// Print 0 for pairs beyond a table's stored θmax instead of refusing them (exit 2).
     #[arg(long)]
     pub outside_domain_zero: bool,
+    /// JSON lines: one object {"f": [...]} per pair (the same as `--format jsonl`).
+    #[arg(long, help_heading = "Output")]
+    pub json: bool,
+    #[command(flatten)]
+    pub report: super::common::ReportTarget,
 }
 
 /// Longest stream line accepted, in bytes (a pair needs well under 200).
@@ -147,14 +152,18 @@ pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
         })
         .and_then(|s| s.into_brdf(args.interp))
         .map_err(|e| prefix_error(e, &format!("source {:?}", args.source)))?;
-    let mut writer = RowWriter::new(&*brdf, args.format, args.echo);
+    let format = if args.json {
+        OutputFormat::Jsonl
+    } else {
+        args.format
+    };
+    let mut writer = RowWriter::new(&*brdf, format, args.echo);
     writer.outside_domain_zero = args.outside_domain_zero;
     let pair = single_pair(&args)?;
     if let Some((wi, wo)) = pair {
         writer.check_domain(wi, wo).map_err(Error::Input)?;
     }
-    let stdout = std::io::stdout();
-    let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
+    let mut out = BufWriter::with_capacity(1 << 16, super::Stdout);
     let result = match pair {
         Some((wi, wo)) => writer
             .header(&mut out)

@@ -15,6 +15,8 @@ pub struct InspectArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub report: super::common::ReportTarget,
 }
 
 /// Statistics of one channel over the valid cells.

@@ -15,6 +15,8 @@ pub struct ModelsArgs {
     /// Print the parameter tables as Markdown (the generated part of docs/models.md).
     #[arg(long, conflicts_with = "json")]
     pub markdown: bool,
+    #[command(flatten)]
+    pub report: super::common::ReportTarget,
 }
 
 pub fn run(args: ModelsArgs) -> anyhow::Result<i32> {
@@ -40,7 +42,7 @@ pub fn run(args: ModelsArgs) -> anyhow::Result<i32> {
     } else {
         listing::catalog_text(decls)
     };
-    let mut out = std::io::stdout().lock();
+    let mut out = super::Stdout;
     out.write_all(text.as_bytes())
         .and_then(|_| out.flush())
         .map_err(super::stdout_error)?;

@@ -2,7 +2,7 @@
 //! check against the source, and report sizes, times and errors.
 
 use super::check::{Bounds, verdict};
-use super::common::{Lookup, SamplingArgs, Source, stderr_is_terminal};
+use super::common::{Bar, DepfileArgs, Lookup, SamplingArgs, SceneArgs, Source};
 use crate::check::{CheckOptions, check, fmt_num};
 use crate::codec::{CodecRequest, CodecSpec};
 use crate::grid::parse_grid_spec;
@@ -21,10 +21,6 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(Args, Debug)]
-#[command(after_help = "Examples:
-  brdfpack pack -o gold.bpk                      # the built-in material, default budget
-  brdfpack pack 'ward:alpha_x=0.1,alpha_y=0.3' -o ward.bpk --max-error log_rmse=0.01,p99_rel_core=0.2
-  brdfpack pack material.binary -o m.bpk --effort max -v")]
 pub struct PackArgs {
     /// Model spec or table file; default: the built-in material (GGX α = 0.2 gold).
     pub source: Option<String>,
@@ -58,15 +54,19 @@ pub struct PackArgs {
     /// grids; tens of seconds).
     #[arg(long, default_value = "default")]
     pub effort: String,
-    /// One JSON object instead of report lines.
+    /// The report as one JSON object on stdout (on stderr with `-o -`).
     #[arg(long)]
     pub json: bool,
-    /// No report (errors and exceeded bounds still print).
-    #[arg(short, long)]
+    /// Nothing but errors (no progress bar, no notes).
+    #[arg(short, long, conflicts_with = "verbose")]
     pub quiet: bool,
-    /// Stage timings on stderr.
+    /// The report (sizes, times, errors) and stage timings on stderr.
     #[arg(short, long)]
     pub verbose: bool,
+    #[command(flatten)]
+    pub depfile: DepfileArgs,
+    #[command(flatten)]
+    pub scene: SceneArgs,
     /// Also check every grid cell (the `cells` set: the source evaluated at each valid cell;
     /// about a second on a MERL-sized grid).
     #[arg(long)]
@@ -96,6 +96,9 @@ struct PackReport {
     /// The budget and the file's error against the source (absent with `--codec`).
     #[serde(skip_serializing_if = "Option::is_none")]
     budget: Option<BudgetReport>,
+    /// What the scene left out (absent without a scene).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    scene: Option<crate::plan::scene::SceneReport>,
     timings: Vec<(String, f64)>,
 }
 
@@ -138,38 +141,48 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     a.bounds.validate()?;
     super::check::validate_samples(a.samples)?;
     let effort = Effort::parse(&a.effort)?;
+    let mut reads = crate::reads::ReadSet::new();
+    let scene = a.scene.load(&mut reads)?;
     let source = match &a.source {
-        Some(s) => a.symmetry.apply(Source::open(s)?),
+        Some(s) => a.symmetry.apply(Source::open_recording(s, &mut reads)?),
         None => Source::Model(Model::default_material()),
     };
     let src = source.into_brdf(Lookup::Linear)?;
-    let explicit = a.max_error.as_deref().map(Budget::parse).transpose()?;
+    let full_channels = src.channels().clone();
+    let src = scene.restrict_source(src)?;
+    let mut symmetry = a.symmetry.clone();
+    if scene.isotropic == Some(true) {
+        symmetry.allow_anisotropic = true;
+    }
+    let explicit = a
+        .max_error
+        .as_deref()
+        .or(scene.max_error.as_deref())
+        .map(Budget::parse)
+        .transpose()?;
     let default_budget = explicit.is_none() && a.codec.is_none();
     let budget = match explicit {
         Some(b) => Some(b),
         None if default_budget => Some(Budget::parse(DEFAULT_MAX_ERROR)?),
         None => None,
     };
-    let show_progress = stderr_is_terminal() && !a.quiet;
-    let tab_opts = a.symmetry.options(show_progress);
-    let bar = show_progress.then(|| {
-        let b = indicatif::ProgressBar::new_spinner();
-        b.enable_steady_tick(std::time::Duration::from_millis(120));
-        b
-    });
+    let bar = Bar::new(a.quiet);
+    let tab_opts = symmetry.options(bar.cells());
     let grid = a.grid.as_deref().map(parse_grid_spec).transpose()?;
+    // A scene's θ range fixes the grid's stored domain (on the default grid when none given).
+    let grid = match (grid, scene.theta_max_deg()) {
+        (Some(g), _) => Some(scene.restrict_grid(&g)?),
+        (None, Some(_)) => Some(scene.restrict_grid(&default_grid(src.as_ref()))?),
+        (None, None) => None,
+    };
     let packed = match &budget {
         Some(budget) => {
-            let progress = |stage: &str| {
-                if let Some(b) = &bar {
-                    b.set_message(stage.to_string());
-                }
-            };
+            let progress = |stage: &str| bar.stage(stage);
             let planned = plan(
                 PackInput::Source {
                     source: src.as_ref(),
                     grid,
-                    options: a.symmetry.options(false),
+                    options: symmetry.options(None),
                 },
                 &PackSettings {
                     budget: budget.clone(),
@@ -179,9 +192,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
                 },
                 &progress,
             );
-            if let Some(b) = &bar {
-                b.finish_and_clear();
-            }
+            bar.finish();
             let planned = planned?;
             let bytes = native::to_bytes(&planned.table, &planned.encoded.spec)?;
             Packed {
@@ -207,12 +218,11 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             }
         }
         None => {
-            if let Some(b) = &bar {
-                b.finish_and_clear();
-            }
             let grid = grid.unwrap_or_else(|| default_grid(src.as_ref()));
             let t0 = Instant::now();
-            let table = tabulate(src.as_ref(), &grid, &tab_opts)?;
+            let table = tabulate(src.as_ref(), &grid, &tab_opts);
+            bar.finish();
+            let table = table?;
             let tabulate_s = t0.elapsed().as_secs_f64();
             let t1 = Instant::now();
             // Without a budget, --codec is given.
@@ -290,7 +300,10 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         return Ok(1);
     }
     atomic::write_output(&a.output, &bytes)?;
+    a.depfile.write(&[a.output.as_path()], &reads)?;
     let raw = table.data().len() * 4;
+    let scene_report = (!scene.is_empty())
+        .then(|| scene.report(&full_channels, table.channels(), &grid, table.valid_count()));
     let r = PackReport {
         output: a.output.display().to_string(),
         source: src.describe(),
@@ -309,6 +322,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         check: report,
         bounds_exceeded: failed,
         budget: budget_report,
+        scene: scene_report,
         timings,
     };
     if a.verbose {
@@ -316,17 +330,17 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             eprintln!("brdfpack: {secs:>8.3} s  {stage}");
         }
     }
-    let to_stderr = a.output.as_os_str() == "-";
-    let out = if a.json {
-        format!("{}\n", serde_json::to_string(&r)?)
-    } else {
-        human(&r)
-    };
-    if !a.quiet {
-        if to_stderr {
-            eprint!("{out}");
+    // Quiet by default: the human report with -v (stderr), the JSON one with --json
+    // (stdout, unless stdout holds the file).
+    if a.verbose {
+        eprint!("{}", human(&r));
+    }
+    if a.json {
+        let json = format!("{}\n", serde_json::to_string(&r)?);
+        if a.output.as_os_str() == "-" {
+            eprint!("{json}");
         } else {
-            out!("{out}");
+            out!("{json}");
         }
     }
     Ok(0)
@@ -442,6 +456,18 @@ fn human(r: &PackReport) -> String {
             ),
             None => writeln!(s, "{name:<13} {v}"),
         };
+    }
+    if let Some(sc) = &r.scene {
+        let _ = writeln!(
+            s,
+            "scene         {}; channels {} of {}; {} of {} cells outside the domain (not stored); {:.1}% of the full table's values kept",
+            sc.domain,
+            sc.channels_kept.join("/"),
+            sc.channels_in.join("/"),
+            sc.cells_dropped,
+            sc.cells,
+            100.0 * sc.values_kept_fraction
+        );
     }
     if let Some(a) = r.check.albedo_err {
         let _ = writeln!(

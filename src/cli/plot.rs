@@ -146,6 +146,17 @@ pub struct PlotArgs {
     pub interp: Lookup,
     #[command(flatten)]
     pub picture: PictureArgs,
+    /// A JSON report (output, format, bytes) on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Nothing but errors.
+    #[arg(short, long, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// Say on stderr what was written.
+    #[arg(short, long)]
+    pub verbose: bool,
+    #[command(flatten)]
+    pub depfile: super::common::DepfileArgs,
 }
 
 /// The image format of `path` (or the one named).
@@ -193,5 +204,25 @@ pub fn run(a: PlotArgs) -> anyhow::Result<i32> {
         &a.output,
         format,
     )?;
+    let mut reads = crate::reads::ReadSet::new();
+    for name in std::iter::once(&a.source).chain(a.against.as_ref()) {
+        // The subjects were opened above; this records the files they read.
+        if std::path::Path::new(name).exists() {
+            reads.record(name);
+        } else {
+            let _ = crate::model::Model::parse_recording(name, &mut reads);
+        }
+    }
+    a.depfile.write(&[a.output.as_path()], &reads)?;
+    let bytes = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);
+    if a.verbose {
+        eprintln!("brdfpack: wrote {} ({bytes} bytes)", a.output.display());
+    }
+    if a.json {
+        outln!(
+            "{}",
+            serde_json::json!({"output": a.output.display().to_string(), "bytes": bytes})
+        );
+    }
     Ok(0)
 }

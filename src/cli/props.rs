@@ -37,6 +37,8 @@ pub struct PropsArgs {
     /// Print the report as one JSON object instead of a table.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub report: super::common::ReportTarget,
 }
 
 pub fn run(args: PropsArgs) -> anyhow::Result<i32> {
@@ -57,7 +59,7 @@ pub fn run(args: PropsArgs) -> anyhow::Result<i32> {
     } else {
         write_table(&mut text, &report)?;
     }
-    let mut out = std::io::stdout().lock();
+    let mut out = super::Stdout;
     out.write_all(&text)
         .and_then(|_| out.flush())
         .map_err(super::stdout_error)?;

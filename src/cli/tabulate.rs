@@ -1,6 +1,8 @@
 //! `brdfpack tabulate`: sample a source onto a grid and write the table.
 
-use super::common::{Lookup, OutputArgs, SamplingArgs, Source, stderr_is_terminal, write_table};
+use super::common::{
+    Bar, DepfileArgs, Lookup, OutputArgs, SamplingArgs, SceneArgs, Source, write_table,
+};
 use crate::grid::parse_grid_spec;
 use crate::tabulate::tabulate;
 use clap::Args;
@@ -32,31 +34,71 @@ pub struct TabulateArgs {
     /// Print one line of statistics on stderr.
     #[arg(short, long)]
     pub verbose: bool,
+    /// A JSON report (cells, channels, bytes, time) on stdout (stderr with `-o -`).
+    #[arg(long)]
+    pub json: bool,
+    /// Nothing but errors (no progress bar, no notes).
+    #[arg(short, long, conflicts_with = "verbose")]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub depfile: DepfileArgs,
+    #[command(flatten)]
+    pub scene: SceneArgs,
 }
 
 pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
-    let grid = parse_grid_spec(&a.grid)?;
+    let mut reads = crate::reads::ReadSet::new();
+    let scene = a.scene.load(&mut reads)?;
+    let grid = scene.restrict_grid(&parse_grid_spec(&a.grid)?)?;
     let format = a.out.resolve(&a.output, &grid)?;
     let src = a
         .symmetry
-        .apply(Source::open(&a.source)?)
+        .apply(Source::open_recording(&a.source, &mut reads)?)
         .into_brdf(a.interp)?;
+    let full_channels = src.channels().clone();
+    let src = scene.restrict_source(src)?;
+    let mut symmetry = a.symmetry.clone();
+    if scene.isotropic == Some(true) {
+        symmetry.allow_anisotropic = true;
+    }
     let t0 = std::time::Instant::now();
-    let table = tabulate(
-        src.as_ref(),
-        &grid,
-        &a.symmetry.options(stderr_is_terminal()),
-    )?;
+    let bar = Bar::new(a.quiet);
+    let table = tabulate(src.as_ref(), &grid, &symmetry.options(bar.cells()));
+    bar.finish();
+    let table = table?;
     let table = if a.to_rgb {
         crate::spectral::spectral_to_rgb(&table)?
     } else {
         table
     };
     let dt = t0.elapsed();
-    for note in &table.provenance().notes {
-        eprintln!("brdfpack: note: {note}");
+    if !a.quiet {
+        for note in &table.provenance().notes {
+            eprintln!("brdfpack: note: {note}");
+        }
     }
     let bytes = write_table(&table, &a.output, &format)?;
+    a.depfile.write(&[a.output.as_path()], &reads)?;
+    if a.json {
+        let scene_report = (!scene.is_empty())
+            .then(|| scene.report(&full_channels, table.channels(), &grid, table.valid_count()));
+        let text = serde_json::json!({
+            "output": a.output.display().to_string(),
+            "grid": grid.describe(),
+            "cells": grid.cells(),
+            "valid_cells": table.valid_count(),
+            "channels": table.channels().names(),
+            "bytes": bytes,
+            "tabulate_s": dt.as_secs_f64(),
+            "scene": scene_report,
+        })
+        .to_string();
+        if a.output.as_os_str() == "-" {
+            eprintln!("{text}");
+        } else {
+            outln!("{text}");
+        }
+    }
     if a.verbose {
         eprintln!(
             "tabulated {} cells ({} valid) × {} channels in {:.3} s; wrote {} bytes",

@@ -17,6 +17,27 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
     if spec == "merl" {
         return Ok(Grid::merl());
     }
+    // `merl,theta-max=DEG`: the MERL grid stored up to θmax.
+    if let Some(opts) = spec.strip_prefix("merl,") {
+        let mut d = Grid::merl().desc();
+        for opt in opts.split(',') {
+            match opt.split_once('=') {
+                Some(("theta-max", v)) => {
+                    d.theta_max_deg = Some(v.trim().parse::<f64>().map_err(|_| {
+                        Error::input(format!(
+                            "grid {spec:?}: theta-max {v:?} is not a number of degrees"
+                        ))
+                    })?)
+                }
+                _ => {
+                    return Err(Error::input(format!(
+                        "grid {spec:?}: option {opt:?}: `merl` takes only theta-max=DEG (spell                          the grid out as halfdiff3:90x90x180,... to change more)"
+                    )));
+                }
+            }
+        }
+        return Grid::from_desc(&d);
+    }
     let (kind_s, rest) = spec.split_once(':').ok_or_else(|| {
         Error::input(format!(
             "grid {spec:?}: expected `merl` or KIND:DIMS (e.g. halfdiff3:90x90x180), KIND one of spherical4, spherical3, halfdiff3, halfdiff4"
@@ -107,6 +128,20 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
     }
     let axes: Vec<_> = (0..d).map(|k| (dims[k], warps[k], placements[k])).collect();
     Ok(Grid::new(kind, &axes, theta_max)?.with_weight(weight))
+}
+
+#[cfg(test)]
+mod merl_tests {
+    use super::*;
+
+    #[test]
+    fn merl_takes_theta_max() {
+        let g = parse_grid_spec("merl,theta-max=60").unwrap();
+        assert_eq!(g.theta_max_deg(), Some(60.0));
+        assert_eq!(g.cells(), Grid::merl().cells());
+        assert!(parse_grid_spec("merl,warp=linear").is_err());
+        assert!(parse_grid_spec("merl,theta-max=abc").is_err());
+    }
 }
 
 /// Splits `s` on `sep` and broadcasts a single value to `d` axes.

@@ -147,6 +147,23 @@ impl Model {
         Model::from_json(&compact::compact_to_json(spec)?)
     }
 
+    /// [`Model::parse`], recording the files the spec reads in `reads`: the `@file.json`
+    /// and every data file it names (`nk = @table.csv`), as named (relative stays relative).
+    pub fn parse_recording(spec: &str, reads: &mut crate::reads::ReadSet) -> Result<Model> {
+        let model = Model::parse(spec)?;
+        let spec = spec.trim();
+        let value = if let Some(path) = spec.strip_prefix('@') {
+            reads.record(path);
+            read_spec_file(path)?
+        } else if spec.starts_with('{') {
+            serde_json::from_str(spec).unwrap_or(Value::Null)
+        } else {
+            compact::compact_to_json(spec)?
+        };
+        record_data_files(&value, reads);
+        Ok(model)
+    }
+
     /// Builds a model from the canonical JSON form of `spec/models.md`
     /// (`{"model": "microfacet", "alpha": 0.2, ...}`); aliases (`ggx`) are accepted as names.
     pub fn from_json(v: &Value) -> Result<Model> {
@@ -477,6 +494,28 @@ fn apply_preset(
     }
     merged.insert("model".into(), Value::from(model));
     Ok(merged)
+}
+
+/// Parameters whose value names a data file (`ParamKind::DataFile`): `nk` of conductors and
+/// HTSG.
+const DATA_FILE_PARAMS: &[&str] = &["nk"];
+
+/// Records every data file a model's JSON names, at any depth (sums, Fresnel objects).
+fn record_data_files(v: &Value, reads: &mut crate::reads::ReadSet) {
+    match v {
+        Value::Object(obj) => {
+            for (k, v) in obj {
+                match v {
+                    Value::String(s) if DATA_FILE_PARAMS.contains(&k.as_str()) => {
+                        reads.record(s.strip_prefix('@').unwrap_or(s));
+                    }
+                    other => record_data_files(other, reads),
+                }
+            }
+        }
+        Value::Array(items) => items.iter().for_each(|v| record_data_files(v, reads)),
+        _ => {}
+    }
 }
 
 fn read_spec_file(path: &str) -> Result<Value> {

@@ -4,9 +4,12 @@
 //! exhaustive codec search kept for figures and `--effort max` comparisons ([`search`]).
 
 pub mod budget;
+pub mod build;
 pub mod estimate;
 pub mod grids;
+pub mod manifest;
 pub mod pack;
 pub mod rate;
+pub mod scene;
 pub mod search;
 pub mod zoo;
