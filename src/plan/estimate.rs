@@ -62,8 +62,6 @@ pub struct ErrorEstimator {
     reference: Vec<f64>,
     stencil: Stencil,
     check: Option<Scored>,
-    /// Extra pairs near the horizon, where heavy-tailed errors live (see [`HorizonProbe`]).
-    probe: Option<(Scored, f64)>,
     channels: usize,
     epsilon: f64,
     /// ε of the relative metrics on a set of `for_samples` pairs with fewer bright pairs than
@@ -80,68 +78,6 @@ pub struct ReferenceSet {
     pub values: Vec<f64>,
     pub channels: usize,
 }
-
-/// Pairs with min(cos θi, cos θo) < [`HORIZON_STRATUM`], uniform within that stratum, and the
-/// stratum's share of uniform pairs: a second look at where heavy-tailed errors live.
-///
-/// The squared log error of a source that grows toward the horizon (Fresnel and shadowing at
-/// grazing, Ashikhmin–Shirley's 1/(h·k · max(cos θi, cos θo)), measured files) is carried by a
-/// handful of pairs with a direction within a few degrees of the horizon: on 10⁶ uniform pairs
-/// of a packed Ashikhmin–Shirley table, the 10% of pairs in this stratum hold 85% of the mean
-/// square and its top 10 pairs 43%. The estimation set alone holds ~13k such pairs; the
-/// probe adds more, and the mean-square upper values are stratified (module doc).
-pub struct HorizonProbe {
-    pub reference: ReferenceSet,
-    /// P(min(cos θi, cos θo) < δ) for a uniform pair: 1 − (1 − δ)².
-    pub share: f64,
-}
-
-/// δ of the horizon stratum: a direction within ~2.9° of the horizon.
-pub const HORIZON_STRATUM: f64 = 0.05;
-
-/// True when a pair is in the horizon stratum.
-fn in_horizon_stratum(wi: crate::geometry::Vec3, wo: crate::geometry::Vec3) -> bool {
-    wi.z.min(wo.z) < HORIZON_STRATUM
-}
-
-impl HorizonProbe {
-    /// `n` pairs uniform within the stratum (uniform pairs from a seed of their own, those
-    /// inside kept), with the source's values.
-    pub fn new(source: &dyn Brdf, n: usize) -> HorizonProbe {
-        let share = 1.0 - (1.0 - HORIZON_STRATUM) * (1.0 - HORIZON_STRATUM);
-        let mut pairs = Vec::with_capacity(n);
-        let mut round = 0u64;
-        while pairs.len() < n {
-            let batch = ((n - pairs.len()) as f64 / share * 1.2) as usize + 64;
-            let more = SampleSet::uniform(batch, PROBE_SEED.wrapping_add(round));
-            pairs.extend(
-                more.pairs
-                    .into_iter()
-                    .filter(|&(wi, wo)| in_horizon_stratum(wi, wo))
-                    .take(n - pairs.len()),
-            );
-            round += 1;
-        }
-        let set = SampleSet {
-            name: "horizon".into(),
-            seed: Some(PROBE_SEED),
-            pairs,
-            weights: None,
-        };
-        let values = evaluate_set(source, &set);
-        HorizonProbe {
-            reference: ReferenceSet {
-                set,
-                values,
-                channels: source.channels().len(),
-            },
-            share,
-        }
-    }
-}
-
-/// Seed of the horizon probe, like [`ESTIMATE_SEED`] far from users' seeds.
-pub const PROBE_SEED: u64 = 0x6275_6467_6574_0002;
 
 /// A sample set, its reference values and a table's stencils at its pairs.
 struct Scored {
@@ -341,25 +277,12 @@ impl ErrorEstimator {
             stencil,
             reference: values,
             check: check.map(|r| Scored::new(table, r)),
-            probe: None,
             channels: c,
             epsilon: reference.epsilon(),
             epsilon_low: reference.epsilon_low(for_samples.max(1)),
             for_samples: for_samples.max(1),
             z: CONFIDENCE_Z,
         })
-    }
-
-    /// Adds the horizon probe: the mean-square upper values become stratified.
-    pub fn with_probe(mut self, table: &Table, probe: &HorizonProbe) -> Result<Self> {
-        if probe.reference.channels != self.channels {
-            return Err(Error::input(format!(
-                "error estimate: the probe has {} channels, the table {}",
-                probe.reference.channels, self.channels
-            )));
-        }
-        self.probe = Some((Scored::new(table, &probe.reference), probe.share));
-        Ok(self)
     }
 
     /// Pairs of the estimation set.
@@ -402,43 +325,31 @@ impl ErrorEstimator {
             rel2: f64,
             log2: f64,
             core: bool,
-            horizon: bool,
         }
-        let pair_terms = |pairs: &[(crate::geometry::Vec3, crate::geometry::Vec3)],
-                          reference: &[f64],
-                          g: &[f64]|
-         -> Vec<PairTerms> {
-            (0..pairs.len())
-                .into_par_iter()
-                .with_min_len(4096)
-                .map(|p| {
-                    let (wi, wo) = pairs[p];
-                    let (mut abs2, mut rel2, mut log2) = (0.0, 0.0, 0.0);
-                    for k in 0..c {
-                        let (f, gv) = (reference[p * c + k], g[p * c + k]);
-                        let a = gv - f;
-                        let r = rel_error(f, gv, eps_low);
-                        let l = log_error(f, gv, wi.z);
-                        abs2 += a * a;
-                        rel2 += r * r;
-                        log2 += l * l;
-                    }
-                    let k = c as f64;
-                    PairTerms {
-                        abs2: abs2 / k,
-                        rel2: rel2 / k,
-                        log2: log2 / k,
-                        core: in_core(wi, wo),
-                        horizon: in_horizon_stratum(wi, wo),
-                    }
-                })
-                .collect()
-        };
-        let terms = pair_terms(&self.set.pairs, &self.reference, &g);
-        let probe: Option<(Vec<PairTerms>, f64)> = self.probe.as_ref().map(|(s, share)| {
-            let gp = s.values(data, c);
-            (pair_terms(&s.set.pairs, &s.reference, &gp), *share)
-        });
+        let terms: Vec<PairTerms> = (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|p| {
+                let (wi, wo) = self.set.pairs[p];
+                let (mut abs2, mut rel2, mut log2) = (0.0, 0.0, 0.0);
+                for k in 0..c {
+                    let (f, gv) = (self.reference[p * c + k], g[p * c + k]);
+                    let a = gv - f;
+                    let r = rel_error(f, gv, eps_low);
+                    let l = log_error(f, gv, wi.z);
+                    abs2 += a * a;
+                    rel2 += r * r;
+                    log2 += l * l;
+                }
+                let k = c as f64;
+                PairTerms {
+                    abs2: abs2 / k,
+                    rel2: rel2 / k,
+                    log2: log2 / k,
+                    core: in_core(wi, wo),
+                }
+            })
+            .collect();
         let spread = |n_own: usize, n_ref: f64| {
             if n_own < 2 || n_ref <= 0.0 {
                 f64::INFINITY
@@ -446,51 +357,18 @@ impl ErrorEstimator {
                 1.0 / n_ref + 1.0 / n_own as f64
             }
         };
-        // Mean and unbiased variance of some values.
-        let stats = |vals: &[f64]| -> (f64, f64) {
-            let m = vals.iter().sum::<f64>() / vals.len().max(1) as f64;
-            let var = if vals.len() > 1 {
-                vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (vals.len() - 1) as f64
-            } else {
-                0.0
-            };
-            (m, var)
-        };
-        // √(mean + z·√(var·spread)) of one per-pair term over the selected pairs. With the
-        // horizon probe (and selected pairs in its stratum), stratified: with p the stratum's
-        // share, m = (1 − p) m₀ + p m₁ and a uniform pair's variance
-        // v = (1 − p)(v₀ + m₀²) + p(v₁ + m₁²) − m², from the estimation set's pairs outside
-        // the stratum (0) and all pairs inside it, the probe's too (1); our estimate's own
-        // variance is (1 − p)² v₀/n₀ + p² v₁/n₁.
+        // √(mean + z·√(var·spread)) of one per-pair term over the selected pairs.
         let upper_rms = |pick: &dyn Fn(&PairTerms) -> Option<f64>, n_ref: f64| {
             let vals: Vec<f64> = terms.iter().filter_map(pick).collect();
             if vals.is_empty() {
                 return 0.0;
             }
-            if let Some((probe, p)) = &probe {
-                let outside: Vec<f64> = terms
-                    .iter()
-                    .filter(|t| !t.horizon)
-                    .filter_map(pick)
-                    .collect();
-                let inside: Vec<f64> = terms
-                    .iter()
-                    .filter(|t| t.horizon)
-                    .chain(probe.iter())
-                    .filter_map(pick)
-                    .collect();
-                let from_probe = probe.iter().filter_map(pick).count();
-                if from_probe > 0 && outside.len() > 1 && inside.len() > 1 && n_ref > 0.0 {
-                    let (m0, v0) = stats(&outside);
-                    let (m1, v1) = stats(&inside);
-                    let m = (1.0 - p) * m0 + p * m1;
-                    let v = ((1.0 - p) * (v0 + m0 * m0) + p * (v1 + m1 * m1) - m * m).max(0.0);
-                    let own = (1.0 - p) * (1.0 - p) * v0 / outside.len() as f64
-                        + p * p * v1 / inside.len() as f64;
-                    return (m + self.z * (v / n_ref + own).sqrt()).sqrt();
-                }
-            }
-            let (m, var) = stats(&vals);
+            let m = vals.iter().sum::<f64>() / vals.len() as f64;
+            let var = if vals.len() > 1 {
+                vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (vals.len() - 1) as f64
+            } else {
+                0.0
+            };
             (m + self.z * (var * spread(vals.len(), n_ref)).sqrt()).sqrt()
         };
         let n_ref = self.for_samples as f64;

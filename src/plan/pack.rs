@@ -10,7 +10,7 @@
 //! make a smaller file. On each grid the rate control of [`super::rate`] picks the codec.
 
 use super::budget::Budget;
-use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, HorizonProbe, ReferenceSet};
+use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
 use super::grids::default_grid_spec;
 use super::rate::{Effort, Encoded, Progress, RateOutcome, encode_within};
 use crate::brdf::Brdf;
@@ -138,11 +138,6 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         settings.check_seed,
         domain.as_ref(),
     );
-    // Heavy tails live near the horizon: a probe there (a quarter of the estimation set's
-    // size) when the domain reaches it.
-    let probe = domain
-        .is_none()
-        .then(|| HorizonProbe::new(source, pairs / 4));
     // The upper values are for independent sets the size of the user's check set inside
     // the domain.
     let for_samples = check.len().max(1);
@@ -162,14 +157,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         let t = Instant::now();
         progress(&format!("interpolation stencils on {spec}"));
         let mut table = table;
-        let with_probe = |e: ErrorEstimator, t: &Table| match &probe {
-            Some(p) => e.with_probe(t, p),
-            None => Ok(e),
-        };
-        let mut est = with_probe(
-            ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?,
-            &table,
-        )?;
+        let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
         let mut floor = est.measure(table.data());
         // What is interpolated between the samples is measured too, when the planner owns
         // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
@@ -183,10 +171,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 InterpWeight::Cosine => InterpWeight::None,
             };
             table.set_interp_weight(other);
-            let est_w = with_probe(
-                ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?,
-                &table,
-            )?;
+            let est_w = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
             let floor_w = est_w.measure(table.data());
             if floor_share(&settings.budget, &floor_w) < floor_share(&settings.budget, &floor) {
                 (est, floor) = (est_w, floor_w);
