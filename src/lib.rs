@@ -18,6 +18,7 @@ pub mod io;
 pub mod math;
 pub mod memory;
 pub mod model;
+pub mod pairs;
 pub mod plan;
 pub mod plot;
 pub mod props;
