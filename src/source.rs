@@ -73,9 +73,18 @@ impl Source {
                 std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
             ));
         };
-        // A name that looks like a file but is none: say so rather than "unknown model".
+        // A name that looks like a file but is none: say so rather than "unknown model". A
+        // `name:params` spec is a model spec with a mistake, even when a parameter holds a `/`
+        // (per-channel values, `lobes=0.9/0.9/1.0/20`): its own parse error says which.
+        let model_shaped = spec.split_once(':').is_some_and(|(name, _)| {
+            name.len() > 1
+                && name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        });
         if !spec.starts_with('@')
             && !spec.starts_with('{')
+            && !model_shaped
             && (io::FormatName::from_path(path).is_some() || spec.contains('/'))
         {
             return Err(Error::io(

@@ -687,6 +687,35 @@ fn a_model_spec_is_never_shadowed_by_a_file_of_that_name() {
     assert!((value("./lambert") - 0.2 / pi).abs() < 1e-6, "the file");
 }
 
+/// A mistaken model spec says what is wrong with it, even when a parameter holds a `/`
+/// (per-channel values); a missing file named like one is still "no such file".
+#[test]
+fn a_model_spec_with_a_slash_is_not_taken_for_a_missing_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = run(
+        d,
+        &[
+            "eval",
+            "lafortune:lobes=0.9/0.9/1.0/20",
+            "--wi",
+            "0,0,1",
+            "--wo",
+            "0,0,1",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    let e = stderr(&o);
+    assert!(!e.contains("no such file"), "{e}");
+    assert!(e.contains("lobes") || e.contains("lafortune"), "{e}");
+    let o = run(
+        d,
+        &["eval", "tables/gold.bpk", "--wi", "0,0,1", "--wo", "0,0,1"],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("no such file"), "{}", stderr(&o));
+}
+
 #[test]
 fn repeated_keys_are_refused() {
     let dir = tempfile::tempdir().unwrap();
