@@ -80,7 +80,7 @@ impl Machine {
             cpu,
             logical_cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
             threads: rayon::current_num_threads(),
-            simd: if crate::fast::tabulate::avx2_available() {
+            simd: if crate::simd::avx2_fma() {
                 "avx2+fma (runtime dispatch)"
             } else {
                 "sse2 baseline"

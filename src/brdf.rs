@@ -132,9 +132,10 @@ pub trait Brdf: Send + Sync {
         None
     }
 
-    /// The analytic model behind this source, when it is one (lets tabulation pick a fast
-    /// path that exploits the model's structure).
-    fn as_model(&self) -> Option<&crate::model::Model> {
+    /// The concrete source behind this one when a layer above may exploit its structure, to
+    /// be downcast there (tabulation's structured microfacet path looks for a
+    /// `model::Model`); None by default. The trait stays ignorant of its implementors.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
         None
     }
 }

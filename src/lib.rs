@@ -23,6 +23,7 @@ pub mod plan;
 pub mod plot;
 pub mod props;
 pub mod reads;
+pub mod simd;
 pub mod source;
 pub mod spectral;
 pub mod table;

@@ -508,7 +508,7 @@ impl Table {
                 ix.use_avx2 &= simd;
                 ix
             });
-        let avx2 = simd && avx2_available();
+        let avx2 = simd && crate::simd::avx2();
         let layout = Layout::new(&self.grid);
         let bits = match &indexer {
             Some(_) => self.valid_bits(),
@@ -1012,18 +1012,6 @@ enum QueryWeight<'a> {
 #[inline(always)]
 fn cosine_weight(w: f64, cell: f32, inv_q: f64) -> f64 {
     w * (cell as f64 * inv_q)
-}
-
-/// True when the CPU has AVX2 (the 3-D stencil loops need nothing else).
-fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
 }
 
 /// One axis's rule for splitting a continuous index into two neighbours and the weight of

@@ -110,7 +110,8 @@ pub fn tabulate_into(
     table.reset(grid, src.channels(), provenance);
     let (data, valid) = table.buffers_mut();
     if let Some(kernel) = src
-        .as_model()
+        .as_any()
+        .and_then(|a| a.downcast_ref::<crate::model::Model>())
         .and_then(|m| HalfdiffMicrofacet::new(m, grid))
         && tabulate_fast(&kernel, data, valid)
     {

@@ -13,40 +13,9 @@
 use super::Layout;
 use super::transform::{Curve, Transform};
 
-/// True when the AVX2 copies of the decoder loops can run on this CPU.
-#[inline]
-pub(crate) fn avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
-/// Defines `$name` that runs `$body` (an `#[inline(always)]` fn) through its AVX2 copy when
-/// the CPU has AVX2, else the portable copy. Same bits either way (module doc).
-macro_rules! dispatch {
-    ($(#[$m:meta])* $vis:vis fn $name:ident / $avx:ident => $body:ident ( $($a:ident : $t:ty),* $(,)? ) $(-> $r:ty)?) => {
-        $(#[$m])*
-        $vis fn $name($($a: $t),*) $(-> $r)? {
-            #[cfg(target_arch = "x86_64")]
-            if $crate::codec::simd::avx2() {
-                // SAFETY: only called when the CPU reports AVX2.
-                return unsafe { $avx($($a),*) };
-            }
-            $body($($a),*)
-        }
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2")]
-        unsafe fn $avx($($a: $t),*) $(-> $r)? {
-            $body($($a),*)
-        }
-    };
-}
-pub(crate) use dispatch;
+// The CPU-feature detector and the portable/AVX2 dispatch are the crate's one pair
+// (`crate::simd`).
+pub(crate) use crate::simd::{avx2, dispatch};
 
 /// Inputs of [`exp_f32`] are clamped to this range: e^88 ≈ 1.65e38 stays below f32::MAX and
 /// e^−87 ≈ 1.6e−38 above the smallest normal, so the exponent bits built below are valid.

@@ -74,7 +74,7 @@ impl HalfdiffIndexer {
         Some(HalfdiffIndexer {
             four,
             maps: [m(0), m(1), m(2), m(3)],
-            use_avx2: super::tabulate::avx2_available(),
+            use_avx2: crate::simd::avx2_fma(),
         })
     }
 

@@ -158,7 +158,7 @@ impl<'a> HalfdiffMicrofacet<'a> {
             pd: pd_t,
             d,
             sf,
-            use_avx2: avx2_available(),
+            use_avx2: crate::simd::avx2_fma(),
         })
     }
 
@@ -372,18 +372,6 @@ fn scale_row_any(k: &[f64], dh: f64, factor: &[f64], out: &mut [f32]) -> bool {
     finite
 }
 
-/// True when the AVX2 + FMA copies of the fast loops can run on this CPU.
-pub(crate) fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -532,7 +520,7 @@ mod tests {
         for ih in [0, 1, 45, 89] {
             k.use_avx2 = false;
             assert!(k.fill_slab(ih, &mut a.0, &mut a.1, &mut scratch));
-            k.use_avx2 = avx2_available();
+            k.use_avx2 = crate::simd::avx2_fma();
             assert!(k.fill_slab(ih, &mut b.0, &mut b.1, &mut scratch));
             assert_eq!(a, b);
             let cells = ih * slab..(ih + 1) * slab;

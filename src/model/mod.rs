@@ -466,7 +466,7 @@ impl Brdf for Model {
         }
     }
 
-    fn as_model(&self) -> Option<&Model> {
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
         Some(self)
     }
 }

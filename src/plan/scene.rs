@@ -368,9 +368,9 @@ impl Brdf for SceneSource {
     }
     /// The model's structured fast paths when the channels are the model's own (the grid
     /// carries the θ limit there).
-    fn as_model(&self) -> Option<&crate::model::Model> {
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
         if self.mix.is_none() {
-            self.inner.as_model()
+            self.inner.as_any()
         } else {
             None
         }
