@@ -12,8 +12,9 @@
 //! (`tucker:`) compare with the f64 reference expansion; `cargo bench --bench codec -- tucker`
 //! runs only them; `-- residual` the chains with a quantized residual.
 
-use brdfpack::codec::{CodecRequest, CodecSpec, DecodeScratch, Layout, reference, testdata};
+use brdfpack::codec::{CodecRequest, CodecSpec, DecodeScratch, Layout, reference};
 use brdfpack::table::Table;
+use brdfpack::testing as testdata;
 use std::collections::HashMap;
 use std::sync::{Mutex, OnceLock};
 

@@ -28,6 +28,8 @@ pub mod source;
 pub mod spectral;
 pub mod table;
 pub mod tabulate;
+#[doc(hidden)]
+pub mod testing;
 pub mod text;
 
 pub use error::{Error, Result};

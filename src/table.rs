@@ -6,6 +6,9 @@ use crate::grid::{Grid, InterpWeight};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
+mod to_rgb;
+pub use to_rgb::spectral_to_rgb;
+
 /// Where a table came from, recorded in every file written.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Provenance {

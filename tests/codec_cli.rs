@@ -1,10 +1,11 @@
 //! `brdfpack compress` end to end on a small self-made table.
 
 use assert_cmd::Command;
-use brdfpack::codec::{CodecSpec, testdata};
+use brdfpack::codec::CodecSpec;
 use brdfpack::grid::parse_grid_spec;
 use brdfpack::io::native;
 use brdfpack::tabulate::tabulate;
+use brdfpack::testing as testdata;
 use predicates::prelude::PredicateBooleanExt;
 use std::path::Path;
 

@@ -3,12 +3,13 @@
 //! Each case asserts the targets of issue 5 it is meant to meet and prints its figures.
 
 use brdfpack::check::{SampleSet, check_set};
-use brdfpack::codec::{CodecRequest, CodecSpec, Layout, testdata};
+use brdfpack::codec::{CodecRequest, CodecSpec, Layout};
 use brdfpack::grid::parse_grid_spec;
 use brdfpack::io::native;
 use brdfpack::plan::search::{Budget, search};
 use brdfpack::table::{Interp, InterpolatedTable, Table};
 use brdfpack::tabulate::tabulate;
+use brdfpack::testing as testdata;
 use std::path::Path;
 use std::time::Instant;
 

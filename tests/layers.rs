@@ -39,13 +39,14 @@ const LAYERS: &[&str] = &[
     "plot",
     "plan",
     "bench",
+    "testing",
     "cli",
     "main",
 ];
 
 /// Back-edges still present, as (file module, used module); each must still occur (so the
 /// list only shrinks) and none may be added.
-const KNOWN_BACK_EDGES: &[(&str, &str)] = &[("codec", "io"), ("spectral", "table")];
+const KNOWN_BACK_EDGES: &[(&str, &str)] = &[];
 
 /// The index of the layer holding `module` (longest prefix on `::` boundaries).
 fn layer_of(module: &str) -> Option<usize> {

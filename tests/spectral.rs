@@ -11,9 +11,9 @@ use brdfpack::io::native;
 use brdfpack::model::Model;
 use brdfpack::model::htsg::{Htsg, HtsgParams};
 use brdfpack::spectral::{
-    OpticalConstants, SpectrumToRgb, d65_white_xyz, require_rgb, spectral_to_rgb,
-    xyz_to_linear_srgb_matrix,
+    OpticalConstants, SpectrumToRgb, d65_white_xyz, require_rgb, xyz_to_linear_srgb_matrix,
 };
+use brdfpack::table::spectral_to_rgb;
 use brdfpack::tabulate::{TabulateOptions, tabulate};
 use serde_json::Value;
 use std::path::{Path, PathBuf};

@@ -67,7 +67,7 @@ pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
     bar.finish();
     let table = table?;
     let table = if a.to_rgb {
-        crate::spectral::spectral_to_rgb(&table)?
+        crate::table::spectral_to_rgb(&table)?
     } else {
         table
     };

@@ -280,10 +280,11 @@ impl From<CodecSpec> for SpecRecord {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{CodecRequest, testdata};
+    use super::super::CodecRequest;
     use super::*;
     use crate::grid::parse_grid_spec;
     use crate::table::Table;
+    use crate::testing as testdata;
 
     /// `CodecSpec` as a reader built before residuals parsed it (src/codec/mod.rs at
     /// 9cd0a3e): the derive on the enum itself.

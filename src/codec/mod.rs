@@ -30,8 +30,6 @@ pub mod reference;
 mod request_text;
 pub mod residual;
 mod simd;
-#[doc(hidden)]
-pub mod testdata;
 pub mod transform;
 pub mod tucker;
 mod unpredict;
@@ -1528,7 +1526,7 @@ mod tests {
         // may leak into the next.
         let small = small_table();
         let big = crate::tabulate::tabulate(
-            &testdata::GgxConductor::new(0.3),
+            &crate::testing::GgxConductor::new(0.3),
             &parse_grid_spec("halfdiff3:16x12x24").unwrap(),
             &crate::tabulate::TabulateOptions::default(),
         )
@@ -2015,7 +2013,7 @@ mod tests {
     fn ggx_on(grid: &str) -> Table {
         let g = parse_grid_spec(grid).unwrap();
         crate::tabulate::tabulate(
-            &testdata::GgxConductor::new(0.15),
+            &crate::testing::GgxConductor::new(0.15),
             &g,
             &crate::tabulate::TabulateOptions::default(),
         )

@@ -524,7 +524,7 @@ mod tests {
     #[test]
     fn search_meets_the_budget_and_reports_what_it_measured() {
         let g = parse_grid_spec("halfdiff3:16x16x24").unwrap();
-        let src = crate::codec::testdata::GgxConductor::new(0.3);
+        let src = crate::testing::GgxConductor::new(0.3);
         let t = crate::tabulate::tabulate(&src, &g, &Default::default()).unwrap();
         let set = SampleSet::uniform(4096, 1);
         let budget = Budget::parse("log_rmse=0.005,p99_rel_core=0.1").unwrap();

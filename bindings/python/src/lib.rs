@@ -558,7 +558,7 @@ fn tabulate(
         };
         let table = core_tabulate(brdf, &grid, &opts)?;
         let table = if to_rgb {
-            brdfpack_core::spectral::spectral_to_rgb(&table)?
+            brdfpack_core::table::spectral_to_rgb(&table)?
         } else {
             table
         };

@@ -1,5 +1,6 @@
-//! Realistic tables for the codec's tests, benches and figures, built from the real models
-//! and readers: a GGX conductor, an anisotropic Ward, and the shared MERL materials.
+//! Test scaffolding: realistic tables for the codec's tests, benches and figures, built from
+//! the real models and readers: a GGX conductor, an anisotropic Ward, and the shared MERL
+//! materials. It sits above the layers it uses (formats included), below the CLI.
 //!
 //! Not part of the public interface (hidden from docs).
 
