@@ -5,7 +5,7 @@
 
 use brdfpack::brdf::Brdf;
 use brdfpack::geometry::Vec3;
-use brdfpack::table::{Interp, InterpolatedTable, Table};
+use brdfpack::table::{Interp, Table};
 use std::path::Path;
 
 /// Fixed (wi, wo) pairs as (θi, φi, θo, φo) in radians: normal, grazing, retro, mirror,
@@ -158,42 +158,77 @@ pub fn small_table() -> &'static Table {
     })
 }
 
-/// The `eval` stream parser (`brdfpack eval SOURCE < pairs`) on arbitrary text. The first
-/// byte picks the input form, output form, `--echo` and the source (the GGX model or its
-/// table); the rest is the stream. Asserted: an error is an input error (exit 2); every
-/// output number is finite; rows have the channel count (+6 echoed components, which are
-/// unit vectors).
+/// The `eval` stream parser (`brdfpack eval SOURCE < pairs`) on arbitrary text, through the
+/// binary (the parser is part of the CLI, which the library does not contain): its path is
+/// `BRDFPACK_BIN` or, in the crate's tests, the binary cargo built; without either the check
+/// is skipped. The first byte picks the input form, output form, `--echo` and the source (the
+/// GGX model or its table); the rest is the stream. Asserted: an error is an input error
+/// (exit 2); every output number is finite; rows have the channel count (+6 echoed
+/// components, which are unit vectors).
 pub fn eval(data: &[u8]) {
-    use brdfpack::cli::{EvalInputFormat as In, EvalOutputFormat as Out, eval_stream_text};
+    use std::io::Write;
     let Some((&mode, rest)) = data.split_first() else {
         return;
     };
-    let Ok(text) = std::str::from_utf8(rest) else {
+    if std::str::from_utf8(rest).is_err() {
+        return;
+    }
+    let Some(bin) = std::env::var_os("BRDFPACK_BIN")
+        .map(std::path::PathBuf::from)
+        .or_else(|| option_env!("CARGO_BIN_EXE_brdfpack").map(Into::into))
+    else {
         return;
     };
-    let form = [In::Auto, In::Text, In::Csv, In::Jsonl][(mode & 3) as usize];
-    let format = [Out::Text, Out::Csv, Out::Jsonl][((mode >> 2) & 3) as usize % 3];
+    let form = ["auto", "text", "csv", "jsonl"][(mode & 3) as usize];
+    let format = ["text", "csv", "jsonl"][((mode >> 2) & 3) as usize % 3];
     let echo = mode & 0x10 != 0;
-    static MODEL: std::sync::OnceLock<brdfpack::model::Model> = std::sync::OnceLock::new();
-    let model = MODEL.get_or_init(|| {
-        brdfpack::model::Model::parse("ggx:alpha=0.15,fresnel=au").expect("GGX spec")
+    static TABLE_FILE: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+    let table_file = TABLE_FILE.get_or_init(|| {
+        let path =
+            std::env::temp_dir().join(format!("brdfpack-fuzz-eval-{}.bpk", std::process::id()));
+        brdfpack::io::write_table(
+            small_table(),
+            &path,
+            &brdfpack::io::OutputFormat::Native(Default::default()),
+        )
+        .expect("the small table writes");
+        path
     });
-    static TABLE: std::sync::OnceLock<InterpolatedTable> = std::sync::OnceLock::new();
-    let table = TABLE.get_or_init(|| InterpolatedTable {
-        table: small_table().clone(),
-        interp: Interp::Linear,
-    });
-    let brdf: &dyn Brdf = if mode & 0x20 != 0 { table } else { model };
-    let out = match eval_stream_text(brdf, text, form, format, echo) {
-        Ok(out) => out,
-        Err(e) => {
-            assert_eq!(e.exit_code(), 2, "eval: error {e} is not an input error");
-            return;
-        }
+    let model_spec = "ggx:alpha=0.15,fresnel=au";
+    let (source, channels) = if mode & 0x20 != 0 {
+        (
+            table_file.to_str().expect("a UTF-8 temp path"),
+            small_table().channels().len(),
+        )
+    } else {
+        (model_spec, 3)
     };
-    let width = brdf.channels().len() + if echo { 6 } else { 0 };
+    let mut cmd = std::process::Command::new(&bin);
+    cmd.args(["eval", source, "--input", form, "--format", format]);
+    if echo {
+        cmd.arg("--echo");
+    }
+    let mut child = cmd
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("brdfpack runs");
+    // The binary may stop reading at a bad line: a closed pipe is not a failure here.
+    let _ = child.stdin.take().expect("stdin").write_all(rest);
+    let run = child.wait_with_output().expect("brdfpack finishes");
+    match run.status.code() {
+        Some(0) => {}
+        Some(2) => return,
+        other => panic!(
+            "eval: exit {other:?} is not an input error: {}",
+            String::from_utf8_lossy(&run.stderr)
+        ),
+    }
+    let out = String::from_utf8(run.stdout).expect("eval output is UTF-8");
+    let width = channels + if echo { 6 } else { 0 };
     let mut lines = out.lines();
-    if format == Out::Csv {
+    if format == "csv" {
         let header = lines.next().expect("csv output starts with a header");
         assert_eq!(
             header.split(',').count(),
@@ -203,9 +238,9 @@ pub fn eval(data: &[u8]) {
     }
     for line in lines {
         let fields: Vec<&str> = match format {
-            Out::Text => line.split(' ').collect(),
-            Out::Csv => line.split(',').collect(),
-            Out::Jsonl => line
+            "text" => line.split(' ').collect(),
+            "csv" => line.split(',').collect(),
+            _ => line
                 .split(|c: char| "{}[],:".contains(c))
                 .filter(|f| !f.is_empty() && !f.starts_with('"'))
                 .collect(),

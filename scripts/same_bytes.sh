@@ -50,11 +50,19 @@ jobs=(
     "comp-budget.bpk|compress tab-merl.bpk --max-error log_rmse=0.02 -o OUT"
     "eval.txt|eval tab-merl.bpk --wi-deg 30,0 --wo-deg 45,180"
     "check.txt|check comp-dct.bpk --against tab-merl.bpk"
+    "man.roff|man"
 )
+# Every subcommand's help (the CLI's value names and their help texts included).
+for sub in pack tabulate check compress convert inspect eval props models plot bench build completions; do
+    jobs+=("help-$sub.txt|$sub --help")
+done
 
 run_all() {
-    local bin=$1 dir=$2
-    mkdir -p "$dir"
+    local dir=$2
+    mkdir -p "$dir/bin"
+    # The same file name for both (help texts show it).
+    cp "$1" "$dir/bin/brdfpack"
+    local bin=$dir/bin/brdfpack
     cp -r "$tmp/in" "$dir/in"
     for job in "${jobs[@]}"; do
         local name=${job%%|*} args=${job#*|}

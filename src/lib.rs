@@ -8,7 +8,6 @@
 pub mod bench;
 pub mod brdf;
 pub mod check;
-pub mod cli;
 pub mod codec;
 pub mod error;
 pub mod fast;

@@ -11,7 +11,7 @@ use crate::{Error, Result};
 use std::path::Path;
 
 /// How a table source is evaluated between its samples.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Lookup {
     /// Multilinear in warped index space (docs/parameterizations.md).
     #[default]

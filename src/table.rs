@@ -23,7 +23,7 @@ pub struct Provenance {
 }
 
 /// How a table is evaluated between its samples.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Interp {
     /// The sample whose cell contains the query (rounded in warped index space).

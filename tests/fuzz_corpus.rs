@@ -63,20 +63,27 @@ fn seed_files_decode() {
 /// hold a deliberate error).
 #[test]
 fn eval_seeds_evaluate() {
-    use brdfpack::cli::{EvalInputFormat, EvalOutputFormat, eval_stream_text};
     let seed = std::fs::read(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/eval/text_text_echo"),
     )
     .unwrap();
-    let m = brdfpack::model::Model::parse("ggx:alpha=0.15,fresnel=au").unwrap();
-    let out = eval_stream_text(
-        &m,
-        std::str::from_utf8(&seed[1..]).unwrap(),
-        EvalInputFormat::Text,
-        EvalOutputFormat::Text,
-        true,
-    )
-    .unwrap();
+    // The seed's first byte is the fuzzer's mode (text in, text out, echo); the binary is
+    // given the same choices as flags and the rest as its stream.
+    let run = assert_cmd::Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args([
+            "eval",
+            "ggx:alpha=0.15,fresnel=au",
+            "--input",
+            "text",
+            "--format",
+            "text",
+            "--echo",
+        ])
+        .write_stdin(seed[1..].to_vec())
+        .assert()
+        .success();
+    let out = String::from_utf8(run.get_output().stdout.clone()).unwrap();
     // 3 rows; the third's huge and tiny vectors normalize to the same unit direction.
     let rows: Vec<Vec<f64>> = out
         .lines()

@@ -429,7 +429,6 @@ fn no_module_uses_a_layer_above_it() {
 
 /// The CLI's dependencies appear only in the binary's files.
 #[test]
-#[ignore = "issue 24: the CLI moves out of the library in a later step"]
 fn clap_and_indicatif_only_in_the_cli() {
     let src = src_dir();
     let mut files = Vec::new();

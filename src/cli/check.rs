@@ -1,6 +1,6 @@
 //! `brdfpack check`: round-trip error of a table (or any source) against a reference.
 
-use super::common::{Lookup, Source};
+use super::common::{LookupArg, Source};
 use crate::check::{CheckOptions, check};
 use clap::Args;
 
@@ -68,8 +68,8 @@ pub struct CheckArgs {
     #[arg(long)]
     pub against: String,
     /// Interpolation used for tables.
-    #[arg(long, value_enum, default_value_t = Lookup::Linear)]
-    pub interp: Lookup,
+    #[arg(long, value_enum, default_value_t = LookupArg::Linear)]
+    pub interp: LookupArg,
     /// Pairs in the uniform set (the other sets use a quarter as many).
     #[arg(long, default_value_t = 65_536)]
     pub samples: usize,
@@ -115,11 +115,11 @@ pub fn run(a: CheckArgs) -> anyhow::Result<i32> {
         _ => None,
     };
     let cand_table = table_of(&cand);
-    let cand = cand.into_brdf(a.interp)?;
+    let cand = cand.into_brdf(a.interp.into())?;
     let reference = Source::open(&a.against)?;
     let reference_table = table_of(&reference);
     let scene = a.scene.load(&mut crate::reads::ReadSet::new())?;
-    let reference = scene.restrict_source(reference.into_brdf(a.interp)?)?;
+    let reference = scene.restrict_source(reference.into_brdf(a.interp.into())?)?;
     let report = check(
         reference.as_ref(),
         cand.as_ref(),

@@ -2,7 +2,7 @@
 
 use crate::codec::CodecRequest;
 use crate::grid::Grid;
-use crate::io::exr::{ExrCompression, ExrOptions, ExrSampleType};
+use crate::io::exr::ExrOptions;
 use crate::io::mbsdf::{MbsdfOptions, mbsdf_dims};
 use crate::io::merl::merl_dims;
 use crate::io::{FormatName, OutputFormat, atomic, encode_table};
@@ -12,6 +12,7 @@ use clap::Args;
 use std::io::IsTerminal;
 use std::path::Path;
 
+pub use super::values::{ExrCompressionArg, ExrTypeArg, FormatArg, InterpArg, LookupArg};
 pub use crate::source::{Lookup, Source};
 
 /// How a table is written: the format (from the output name or `--format`) and its options.
@@ -20,13 +21,13 @@ pub struct OutputArgs {
     /// Output format; default from the output name: .bpk native, .exr EXR, .binary MERL,
     /// .mbsdf MDL, .bsdf RGL (`convert` only) (and native for `-`, stdout).
     #[arg(long, value_enum, help_heading = "Output")]
-    pub format: Option<FormatName>,
+    pub format: Option<FormatArg>,
     /// EXR sample type (f16 values above 65504 are scaled by a recorded power of two).
-    #[arg(long, value_enum, default_value_t = ExrSampleType::F32, help_heading = "Output")]
-    pub exr_type: ExrSampleType,
+    #[arg(long, value_enum, default_value_t = ExrTypeArg::F32, help_heading = "Output")]
+    pub exr_type: ExrTypeArg,
     /// EXR compression; lossless by default (pxr24 is lossy for f32 and only used when named).
-    #[arg(long, value_enum, default_value_t = ExrCompression::Zip, help_heading = "Output")]
-    pub exr_compression: ExrCompression,
+    #[arg(long, value_enum, default_value_t = ExrCompressionArg::Zip, help_heading = "Output")]
+    pub exr_compression: ExrCompressionArg,
     /// Codec of the native format: `lossless` (prediction + byte shuffle + zstd, bit-exact),
     /// `zstd-f32`, `f16`, `uniform:bits=K`, `dct:step=S` ... (docs/compression.md).
     #[arg(long, default_value = "lossless", help_heading = "Output")]
@@ -50,6 +51,7 @@ impl OutputArgs {
     pub fn resolve(&self, path: &Path, grid: &Grid) -> Result<OutputPlan> {
         let format = self
             .format
+            .map(FormatName::from)
             .or_else(|| FormatName::from_path(path))
             // stdout: the native format unless told otherwise.
             .or((path.as_os_str() == "-").then_some(FormatName::Native))
@@ -77,8 +79,8 @@ impl OutputArgs {
         Ok(match format {
             FormatName::Native => OutputPlan::Native(CodecRequest::parse(&self.codec)?),
             FormatName::Exr => OutputPlan::Other(OutputFormat::Exr(ExrOptions {
-                sample_type: self.exr_type,
-                compression: self.exr_compression,
+                sample_type: self.exr_type.into(),
+                compression: self.exr_compression.into(),
             })),
             FormatName::Merl => OutputPlan::Other(OutputFormat::Merl),
             FormatName::Mbsdf => OutputPlan::Other(OutputFormat::Mbsdf(MbsdfOptions {

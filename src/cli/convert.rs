@@ -1,7 +1,7 @@
 //! `brdfpack convert`: a table (native, EXR, MERL) or a model to a table file in another
 //! format or on another grid.
 
-use super::common::{Lookup, OutputArgs, SamplingArgs, Source};
+use super::common::{InterpArg, Lookup, OutputArgs, SamplingArgs, Source};
 use crate::grid::{Grid, parse_grid_spec};
 use crate::io::mbsdf::mbsdf_dims;
 use crate::io::merl::merl_dims;
@@ -24,8 +24,8 @@ pub struct ConvertArgs {
     #[arg(long)]
     pub grid: Option<String>,
     /// Interpolation used when a table is re-gridded.
-    #[arg(long, value_enum, default_value_t = Interp::Linear)]
-    pub interp: Interp,
+    #[arg(long, value_enum, default_value_t = InterpArg::Linear)]
+    pub interp: InterpArg,
     #[command(flatten)]
     pub out: OutputArgs,
     #[command(flatten)]
@@ -58,7 +58,11 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
     let input = a
         .symmetry
         .apply(Source::open_recording(&a.input, &mut reads)?);
-    let format = a.out.format.or_else(|| FormatName::from_path(&a.output));
+    let format = a
+        .out
+        .format
+        .map(FormatName::from)
+        .or_else(|| FormatName::from_path(&a.output));
     if format == Some(FormatName::Rgl) {
         let code = super::convert_rgl::run(&a, input)?;
         a.depfile.write(&[a.output.as_path()], &reads)?;
@@ -83,7 +87,7 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
     let opts = a.symmetry.options(bar.cells());
     let table = match input {
         Source::Table(t) if *t.grid() == grid => Ok(t),
-        Source::Table(t) => regrid(t, &grid, a.interp, &opts),
+        Source::Table(t) => regrid(t, &grid, a.interp.into(), &opts),
         other => tabulate(other.into_brdf(Lookup::Linear)?.as_ref(), &grid, &opts),
     };
     bar.finish();

@@ -86,7 +86,7 @@ pub fn run(a: &ConvertArgs, input: Source) -> anyhow::Result<i32> {
         }
         return Ok(0);
     }
-    let brdf = input.into_brdf(match a.interp {
+    let brdf = input.into_brdf(match crate::table::Interp::from(a.interp) {
         crate::table::Interp::Linear => Lookup::Linear,
         crate::table::Interp::Nearest => Lookup::Nearest,
     })?;

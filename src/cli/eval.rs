@@ -62,8 +62,8 @@ pub struct EvalArgs {
 
     /// How a table is evaluated between samples: linear, nearest, or merl (the MERL reference
     /// reader's nearest-lower-bin rule, exactly).
-    #[arg(long, value_enum, default_value_t = crate::source::Lookup::Linear)]
-    pub interp: crate::source::Lookup,
+    #[arg(long, value_enum, default_value_t = super::values::LookupArg::Linear)]
+    pub interp: super::values::LookupArg,
 
     /// Clamp negative values of a measured source (RGL) to 0 instead of passing them through.
     #[arg(long)]
@@ -150,7 +150,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
             }
             other => other,
         })
-        .and_then(|s| s.into_brdf(args.interp))
+        .and_then(|s| s.into_brdf(args.interp.into()))
         .map_err(|e| prefix_error(e, &format!("source {:?}", args.source)))?;
     let format = if args.json {
         OutputFormat::Jsonl
@@ -308,7 +308,7 @@ fn check_count(n: usize, sep: &str) -> std::result::Result<(), String> {
 /// `brdfpack eval`'s stream processing on a whole text instead of stdin: the same line
 /// parser and row writer ([`eval_stream`]), with the rows returned as a string. An error
 /// (the first bad line) discards the rows before it. For the fuzzer and tests.
-#[doc(hidden)]
+#[cfg(test)]
 pub fn eval_stream_text(
     brdf: &dyn Brdf,
     input: &str,

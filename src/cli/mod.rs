@@ -38,11 +38,9 @@ mod plot;
 mod props;
 mod tabulate;
 mod tools;
-
-#[doc(hidden)]
-pub use eval::{
-    InputFormat as EvalInputFormat, OutputFormat as EvalOutputFormat, eval_stream_text,
-};
+mod values;
+#[cfg(test)]
+mod vocabulary_tests;
 
 /// brdfpack: turn BRDFs into compact tables and back.
 #[derive(Parser, Debug)]

@@ -1,6 +1,6 @@
 //! `brdfpack plot`: pictures of a source, and of its error against a reference.
 
-use super::common::Lookup;
+use super::common::LookupArg;
 use crate::io::atomic;
 use crate::plot::{self, ImageFormat, PlotOptions, RadiusScale, Subject, View};
 use clap::{Args, ValueEnum};
@@ -142,8 +142,8 @@ pub struct PlotArgs {
     #[arg(long, value_enum)]
     pub format: Option<FormatArg>,
     /// Interpolation used for tables.
-    #[arg(long, value_enum, default_value_t = Lookup::Linear)]
-    pub interp: Lookup,
+    #[arg(long, value_enum, default_value_t = LookupArg::Linear)]
+    pub interp: LookupArg,
     #[command(flatten)]
     pub picture: PictureArgs,
     /// A JSON report (output, format, bytes) on stdout.
@@ -190,11 +190,11 @@ pub fn write_picture(
 pub fn run(a: PlotArgs) -> anyhow::Result<i32> {
     let format = image_format(&a.output, a.format)?;
     let opts = a.picture.options()?;
-    let source = Subject::open(&a.source, a.interp)?;
+    let source = Subject::open(&a.source, a.interp.into())?;
     let reference = a
         .against
         .as_deref()
-        .map(|r| Subject::open(r, a.interp))
+        .map(|r| Subject::open(r, a.interp.into()))
         .transpose()?;
     write_picture(
         a.view.into(),

@@ -1,7 +1,7 @@
 //! `brdfpack tabulate`: sample a source onto a grid and write the table.
 
 use super::common::{
-    Bar, DepfileArgs, Lookup, OutputArgs, SamplingArgs, SceneArgs, Source, write_table,
+    Bar, DepfileArgs, LookupArg, OutputArgs, SamplingArgs, SceneArgs, Source, write_table,
 };
 use crate::grid::parse_grid_spec;
 use crate::tabulate::tabulate;
@@ -21,8 +21,8 @@ pub struct TabulateArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Interpolation when the source is a table.
-    #[arg(long, value_enum, default_value_t = Lookup::Linear)]
-    pub interp: Lookup,
+    #[arg(long, value_enum, default_value_t = LookupArg::Linear)]
+    pub interp: LookupArg,
     #[command(flatten)]
     pub symmetry: SamplingArgs,
     /// Convert spectral channels to linear sRGB before writing (CIE 1931 2°, D65; see
@@ -54,7 +54,7 @@ pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
     let src = a
         .symmetry
         .apply(Source::open_recording(&a.source, &mut reads)?)
-        .into_brdf(a.interp)?;
+        .into_brdf(a.interp.into())?;
     let full_channels = src.channels().clone();
     let src = scene.restrict_source(src)?;
     let mut symmetry = a.symmetry.clone();

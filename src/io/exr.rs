@@ -30,7 +30,7 @@ const F16_MAX: f64 = 65504.0;
 const MAX_EXPANSION: u128 = 2048;
 
 /// Storage type of the value channels.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ExrSampleType {
     /// 32-bit float: the table's samples exactly.
@@ -42,7 +42,7 @@ pub enum ExrSampleType {
 }
 
 /// EXR compression (all lossless except PXR24 on f32 channels, which must be asked for).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ExrCompression {
     None,
     Rle,

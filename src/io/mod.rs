@@ -96,7 +96,7 @@ pub fn read_table(path: &Path) -> Result<Table> {
 }
 
 /// A format name, as `--format` takes it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FormatName {
     /// brdfpack's native `.bpk`.
     Native,
