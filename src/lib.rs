@@ -10,7 +10,6 @@ pub mod brdf;
 pub mod check;
 pub mod codec;
 pub mod error;
-pub mod fast;
 pub mod geometry;
 pub mod grid;
 pub mod io;

@@ -1,5 +1,7 @@
 //! The numerics toolbox (f64 throughout), after pbrt-v4's `util/math.h`.
 
+pub mod atan;
+
 pub const PI: f64 = std::f64::consts::PI;
 pub const FRAC_1_PI: f64 = std::f64::consts::FRAC_1_PI;
 pub const FRAC_PI_2: f64 = std::f64::consts::FRAC_PI_2;

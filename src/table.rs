@@ -6,6 +6,7 @@ use crate::grid::{Grid, InterpWeight};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
+pub mod lookup;
 mod to_rgb;
 pub use to_rgb::spectral_to_rgb;
 
@@ -474,7 +475,7 @@ impl Table {
     /// `ch`, the values of [`Table::eval_into`] (to ~1e-12 relative; same fallbacks at
     /// invalid neighbours). Runs in parallel; the result does not depend on the number of
     /// threads or on the SIMD path. Half/difference grids without θ limit take a vectorized
-    /// path for the angles (`crate::fast::lookup`), and 3-D ones (halfdiff3, the MERL grid)
+    /// path for the angles (`crate::table::lookup`), and 3-D ones (halfdiff3, the MERL grid)
     /// a trilinear stencil path ([`Table::eval_blocks3`]).
     ///
     /// # Panics
@@ -492,7 +493,7 @@ impl Table {
         out: &mut [f64],
         simd: bool,
     ) {
-        use crate::fast::lookup::HalfdiffIndexer;
+        use crate::table::lookup::HalfdiffIndexer;
         use rayon::prelude::*;
         let c = self.channels.len();
         assert_eq!(
@@ -542,7 +543,7 @@ impl Table {
     #[allow(clippy::too_many_arguments)]
     fn eval_blocks3(
         &self,
-        ix: &crate::fast::lookup::HalfdiffIndexer,
+        ix: &crate::table::lookup::HalfdiffIndexer,
         pairs: &[(Vec3, Vec3)],
         interp: Interp,
         layout: &Layout,
@@ -550,7 +551,7 @@ impl Table {
         avx2: bool,
         out: &mut [f64],
     ) {
-        use crate::fast::lookup::BLOCK;
+        use crate::table::lookup::BLOCK;
         let c = self.channels.len();
         let nearest = interp == Interp::Nearest;
         // Software pipeline: the stencils of block k + 1 are computed and their cache lines
@@ -746,14 +747,14 @@ impl Table {
     /// block k + 1 are issued before block k is interpolated, so its misses overlap that work.
     fn eval_blocks(
         &self,
-        ix: &crate::fast::lookup::HalfdiffIndexer,
+        ix: &crate::table::lookup::HalfdiffIndexer,
         pairs: &[(Vec3, Vec3)],
         interp: Interp,
         layout: &Layout,
         bits: &ValidBits,
         out: &mut [f64],
     ) {
-        use crate::fast::lookup::BLOCK;
+        use crate::table::lookup::BLOCK;
         let c = self.channels.len();
         let strides = &layout.strides;
         let mut cur = ([[0f64; 4]; BLOCK], [false; BLOCK]);
@@ -1258,7 +1259,7 @@ struct Stencil3 {
     w: [[[f64; BLOCK]; 2]; 3],
 }
 
-use crate::fast::lookup::BLOCK;
+use crate::table::lookup::BLOCK;
 
 /// One block of a batch on a 3-D grid: continuous indices, domain flags and stencils.
 struct Block3 {

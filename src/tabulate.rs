@@ -2,10 +2,12 @@
 //! computed independently, so the bytes do not depend on the thread count).
 
 use crate::brdf::Brdf;
-use crate::fast::tabulate::HalfdiffMicrofacet;
 use crate::grid::Grid;
 use crate::table::{Provenance, Table};
 use crate::{Error, Result, TOOL_VERSION};
+use structured::HalfdiffMicrofacet;
+
+pub mod structured;
 use rayon::prelude::*;
 
 /// Options of [`tabulate`].
@@ -63,7 +65,7 @@ fn require_memory(src: &dyn Brdf, grid: &Grid) -> Result<()> {
 /// Like [`tabulate`], into an existing table whose allocation is reused when its size fits
 /// (repeated tabulation, benchmarks). On error the table's contents are unspecified.
 ///
-/// Microfacet models on half/difference grids take a fast path (`crate::fast::tabulate`)
+/// Microfacet models on half/difference grids take a fast path (`crate::tabulate::structured`)
 /// that gives the generic path's values to ~1e-15 relative and the same validity.
 pub fn tabulate_into(
     src: &dyn Brdf,

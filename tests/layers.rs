@@ -13,35 +13,9 @@ use std::path::{Path, PathBuf};
 /// list, never one below. Module paths are relative to the crate root; "" is the root
 /// (`lib.rs`: `Error`, `Result`, `TOOL_VERSION`).
 const LAYERS: &[&str] = &[
-    "",
-    "error",
-    "text",
-    "memory",
-    "reads",
-    "math",
-    "simd",
-    "geometry",
-    "brdf",
-    "spectral",
-    "model",
-    "grid",
-    "fast",
-    "fast::lookup",
-    "table",
-    "fast::tabulate",
-    "tabulate",
-    "props",
-    "check",
-    "codec",
-    "io",
-    "source",
-    "pairs",
-    "plot",
-    "plan",
-    "bench",
-    "testing",
-    "cli",
-    "main",
+    "", "error", "text", "memory", "reads", "math", "simd", "geometry", "brdf", "spectral",
+    "model", "grid", "table", "tabulate", "props", "check", "codec", "io", "source", "pairs",
+    "plot", "plan", "bench", "testing", "cli", "main",
 ];
 
 /// Back-edges still present, as (file module, used module); each must still occur (so the

@@ -1,15 +1,6 @@
-//! Fast paths of the hot loops (issue 6): tabulating microfacet models on half/difference
-//! grids and evaluating stored tables in batches. Each fast path reproduces a generic path of
-//! the crate (`tabulate::tabulate`'s per-cell loop, `Table::eval_into`) to ~1e-12 relative and
-//! is tested against it; the generic path stays the definition.
-//!
-//! SIMD: the inner loops are plain f64 loops without calls or branches that LLVM
-//! auto-vectorizes; they are compiled twice, for the SSE2 baseline and for AVX2 + FMA, and
-//! the AVX2 copy is selected at run time. Rust never contracts a·b + c into an FMA on its own,
-//! so both copies give the same bits (the bytes of a table do not depend on the CPU).
-
-pub mod lookup;
-pub mod tabulate;
+//! atan for the vectorized loops of the structured tabulation (`tabulate::structured`) and
+//! the batch lookups of tables (`table::lookup`): branch-free, so that the loops calling it
+//! vectorize (`crate::simd` for the SIMD copies).
 
 /// π/2 and π/4 split in two parts (Cody–Waite), for argument reduction in [`atan_ratio`].
 const FRAC_PI_2_HI: f64 = std::f64::consts::FRAC_PI_2;

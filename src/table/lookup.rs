@@ -3,14 +3,14 @@
 //! The generic path (`Grid::coords_of` → `HalfDiff::from_dirs`) takes three atan2 and four
 //! sin_cos per pair. Here the half-frame rotation uses the half vector's own components
 //! (cos φh = h.x/r, sin θh = r/|h| ..., with one division for both 1/r and 1/|h|), the angles
-//! come from a branch-free atan ([`super::atan2_first_quadrant`], one division for the ratio),
+//! come from a branch-free atan ([`crate::math::atan::atan2_first_quadrant`], one division for the ratio),
 //! the index maps multiply by a precomputed 1/span, and the loop over a block of pairs has no
 //! calls or branches, so it vectorizes. Results agree with the generic path to ~1e-15 in angle.
 
-use super::{atan2_first_quadrant, atan2_full};
 use crate::geometry::Vec3;
 use crate::grid::{Axis, Grid, GridKind, Warp};
 use crate::math::PI;
+use crate::math::atan::{atan2_first_quadrant, atan2_full};
 
 /// An axis's angle → continuous index map, as `Axis::continuous_index`.
 #[derive(Clone, Copy, Debug)]
