@@ -116,8 +116,6 @@ pub const CIE_1931_2DEG_D65: [[f64; 4]; 81] = [
 /// The sRGB primaries' chromaticities (x, y) for R, G, B (IEC 61966-2-1:1999 / ITU-R BT.709).
 pub const SRGB_PRIMARIES_XY: [[f64; 2]; 3] = [[0.64, 0.33], [0.30, 0.60], [0.15, 0.06]];
 
-/// Size limit of an optical-constants file (a few thousand rows are plenty).
-const MAX_NK_FILE_BYTES: u64 = 4 << 20;
 /// Row limit of an optical-constants file.
 const MAX_NK_ROWS: usize = 100_000;
 
@@ -194,25 +192,6 @@ pub struct OpticalConstants {
 }
 
 impl OpticalConstants {
-    /// Reads a CSV file: a header `wavelength_nm,n,k` (or `wavelength_um,n,k`), then one row
-    /// per wavelength, strictly increasing; `#` starts a comment line.
-    pub fn read_csv(path: &Path) -> Result<OpticalConstants> {
-        use std::io::Read;
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let mut text = String::new();
-        // Cap the read: a table of optical constants is small; a huge file is a mistake.
-        file.take(MAX_NK_FILE_BYTES + 1)
-            .read_to_string(&mut text)
-            .map_err(|e| Error::invalid_file(path, format!("not a UTF-8 CSV file: {e}")))?;
-        if text.len() as u64 > MAX_NK_FILE_BYTES {
-            return Err(Error::invalid_file(
-                path,
-                format!("larger than {MAX_NK_FILE_BYTES} bytes; expected a small CSV of λ, n, k"),
-            ));
-        }
-        Self::parse_csv(&text, path)
-    }
-
     /// Parses the text of an optical-constants CSV file (`path` only names it in messages).
     pub fn parse_csv(text: &str, path: &Path) -> Result<OpticalConstants> {
         let bad =

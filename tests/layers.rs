@@ -428,6 +428,41 @@ fn no_module_uses_a_layer_above_it() {
     );
 }
 
+/// Below `io` nothing opens a file: physics, tables and codecs take text and bytes (model
+/// specs name files through `model::SpecFiles`, read by `io::model_files`).
+#[test]
+fn no_file_access_below_io() {
+    let io = layer_of("io").unwrap();
+    let src = src_dir();
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut report = Vec::new();
+    for f in &files {
+        let rel = f.strip_prefix(&src).unwrap();
+        let module = module_of(rel);
+        if layer_of(&module).is_none_or(|l| l >= io) {
+            continue;
+        }
+        let text = std::fs::read_to_string(f).unwrap();
+        let mut code = code_only(&text);
+        without_test_items(&mut code);
+        let code = String::from_utf8(code).unwrap();
+        for (n, line) in code.lines().enumerate() {
+            if ["std::fs", "fs::", "File::", "OpenOptions"]
+                .iter()
+                .any(|p| line.contains(p))
+            {
+                report.push(format!("src/{}:{}: {}", rel.display(), n + 1, line.trim()));
+            }
+        }
+    }
+    assert!(
+        report.is_empty(),
+        "file access below io:\n{}",
+        report.join("\n")
+    );
+}
+
 /// The CLI's dependencies appear only in the binary's files.
 #[test]
 fn clap_and_indicatif_only_in_the_cli() {

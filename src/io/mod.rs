@@ -6,6 +6,7 @@ pub mod cleanup;
 pub mod exr;
 pub mod mbsdf;
 pub mod merl;
+pub mod model_files;
 pub mod native;
 pub mod rgl;
 

@@ -26,7 +26,7 @@ const FRESNEL_FIELDS: &[(&str, &str)] = &[
 ];
 
 /// Translates a compact spec into canonical JSON (not yet validated beyond syntax).
-pub(super) fn compact_to_json(spec: &str) -> Result<Value> {
+pub(crate) fn compact_to_json(spec: &str) -> Result<Value> {
     let terms = split_terms(spec);
     let mut out = Vec::with_capacity(terms.len());
     for term in terms {

@@ -4,7 +4,6 @@ use super::params::{
     ChannelCount, ParamDecl, ParamDefault, ParamKind, ParamReader, broadcast, channel_json,
 };
 use crate::math::{safe_sqrt, sqr};
-use crate::spectral::OpticalConstants;
 use crate::{Error, Result};
 use serde_json::{Map, Value, json};
 
@@ -231,7 +230,14 @@ impl Fresnel {
                  none | schlick | dielectric | conductor | au | cu | ag | al"
             )));
         };
-        let sub = ParamReader::new(context, format!("{name}."), obj, decls, &["type"])?;
+        let sub = ParamReader::new(
+            context,
+            format!("{name}."),
+            obj,
+            decls,
+            &["type"],
+            reader.files(),
+        )?;
         Ok(match type_name {
             "none" => Fresnel::None,
             "schlick" => Fresnel::Schlick {
@@ -259,7 +265,9 @@ impl Fresnel {
                              (the wavelengths at which to interpolate η and k)"
                         )));
                     };
-                    let (eta, k) = OpticalConstants::read_csv(std::path::Path::new(path))?
+                    let (eta, k) = reader
+                        .files()
+                        .optical_constants(path)?
                         .at(w)
                         .map_err(|e| Error::input(format!("{context}: {name}.nk: {e}")))?;
                     Fresnel::Conductor { eta, k }

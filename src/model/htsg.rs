@@ -14,7 +14,7 @@ use super::params::{ModelDecl, ParamDecl, ParamKind, ParamReader, broadcast};
 use crate::brdf::Channels;
 use crate::geometry::Vec3;
 use crate::math::{FRAC_1_PI, PI, erfc, sqr};
-use crate::spectral::{OpticalConstants, nm_from_um};
+use crate::spectral::nm_from_um;
 use crate::{Error, Result};
 use serde_json::{Value, json};
 
@@ -432,7 +432,8 @@ impl Htsg {
             None => (broadcast(&eta_re, c), broadcast(&eta_im, c)),
             Some(path) => {
                 let nm: Vec<f64> = wavelengths_um.iter().map(|&w| nm_from_um(w)).collect();
-                OpticalConstants::read_csv(std::path::Path::new(path))?
+                r.files()
+                    .optical_constants(path)?
                     .at(&nm)
                     .map_err(|e| Error::input(format!("{ctx}: nk: {e}")))?
             }

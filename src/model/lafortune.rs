@@ -121,7 +121,14 @@ impl Lafortune {
                     "{ctx}: lobes[{i}] = {item} is not an object {{cx, cy, cz, n, albedo}}"
                 )));
             };
-            let lr = ParamReader::new(ctx, format!("lobes[{i}]."), obj, LOBE_PARAMS, &[])?;
+            let lr = ParamReader::new(
+                ctx,
+                format!("lobes[{i}]."),
+                obj,
+                LOBE_PARAMS,
+                &[],
+                r.files(),
+            )?;
             raw_lobes.push([
                 lr.channel("cx", &mut cc)?,
                 lr.channel("cy", &mut cc)?,

@@ -11,7 +11,7 @@
 //! `DECL`; then one arm in each `match` below and one entry in [`CATALOG`].
 
 pub mod ashikhmin_shirley;
-mod compact;
+pub(crate) mod compact;
 pub mod fresnel;
 pub mod lafortune;
 pub mod lambert;
@@ -65,8 +65,32 @@ pub const CATALOG: &[ModelDecl] = &[
 
 /// Nesting limit for sums inside sums (a hostile spec could otherwise recurse deeply).
 const MAX_DEPTH: usize = 8;
-/// Size limit of a `@file.json` model spec.
-const MAX_SPEC_FILE_BYTES: u64 = 1 << 20;
+
+/// The files a model spec may name: a whole spec (`@spec.json`) and optical constants
+/// (`nk = @file.csv`). The models parse text and never open files; a layer above reads them
+/// (`io::ModelFiles`, behind `Model::parse`), or a caller supplies its own.
+pub trait SpecFiles {
+    /// The JSON of the spec file `path` (as written after `@`).
+    fn spec_json(&self, path: &str) -> Result<Value>;
+    /// The optical constants of the CSV file `path` (as written, `@` removed).
+    fn optical_constants(&self, path: &str) -> Result<crate::spectral::OpticalConstants>;
+}
+
+/// No files: a spec that names one is refused (for specs known to name none).
+pub struct NoFiles;
+
+impl SpecFiles for NoFiles {
+    fn spec_json(&self, path: &str) -> Result<Value> {
+        Err(Error::input(format!(
+            "model spec @{path}: files are not read here"
+        )))
+    }
+    fn optical_constants(&self, path: &str) -> Result<crate::spectral::OpticalConstants> {
+        Err(Error::input(format!(
+            "optical constants {path}: files are not read here"
+        )))
+    }
+}
 
 /// The largest finite value for results that exceed the f64 range. This happens only where
 /// the exact BRDF value itself is above ~1.8e308: directions within ~1e-150 of the horizon
@@ -122,8 +146,9 @@ fn unknown_model(name: &str) -> Error {
 
 impl Model {
     /// Parses a model from the compact shell form (`ggx:alpha=0.2,fresnel=au`, see
-    /// `docs/models.md`), inline JSON (`{...}`) or a JSON file (`@file.json`).
-    pub fn parse(spec: &str) -> Result<Model> {
+    /// `docs/models.md`), inline JSON (`{...}`) or a JSON file (`@file.json`), the files it
+    /// names read by `files` (`Model::parse` in `io` reads them from disk).
+    pub fn parse_with(spec: &str, files: &dyn SpecFiles) -> Result<Model> {
         let spec = spec.trim();
         if spec.is_empty() {
             return Err(Error::input(
@@ -139,38 +164,26 @@ impl Model {
             })?;
             let v: Value = serde_json::from_str(spec)
                 .map_err(|e| Error::input(format!("model JSON {spec:?}: {e}")))?;
-            return Model::from_json(&v);
+            return Model::from_json_with(&v, files);
         }
         if let Some(path) = spec.strip_prefix('@') {
-            return Model::from_json(&read_spec_file(path)?);
+            return Model::from_json_with(&files.spec_json(path)?, files);
         }
-        Model::from_json(&compact::compact_to_json(spec)?)
-    }
-
-    /// [`Model::parse`], recording the files the spec reads in `reads`: the `@file.json`
-    /// and every data file it names (`nk = @table.csv`), as named (relative stays relative).
-    pub fn parse_recording(spec: &str, reads: &mut crate::reads::ReadSet) -> Result<Model> {
-        let model = Model::parse(spec)?;
-        let spec = spec.trim();
-        let value = if let Some(path) = spec.strip_prefix('@') {
-            reads.record(path);
-            read_spec_file(path)?
-        } else if spec.starts_with('{') {
-            serde_json::from_str(spec).unwrap_or(Value::Null)
-        } else {
-            compact::compact_to_json(spec)?
-        };
-        record_data_files(&value, reads);
-        Ok(model)
+        Model::from_json_with(&compact::compact_to_json(spec)?, files)
     }
 
     /// Builds a model from the canonical JSON form of `spec/models.md`
     /// (`{"model": "microfacet", "alpha": 0.2, ...}`); aliases (`ggx`) are accepted as names.
-    pub fn from_json(v: &Value) -> Result<Model> {
-        Model::from_json_at_depth(v, 0)
+    /// The data files it names are read by `files`.
+    pub fn from_json_with(v: &Value, files: &dyn SpecFiles) -> Result<Model> {
+        Model::from_json_at_depth(v, 0, files)
     }
 
-    pub(crate) fn from_json_at_depth(v: &Value, depth: usize) -> Result<Model> {
+    pub(crate) fn from_json_at_depth(
+        v: &Value,
+        depth: usize,
+        files: &dyn SpecFiles,
+    ) -> Result<Model> {
         if depth > MAX_DEPTH {
             return Err(Error::input(format!(
                 "model JSON: sums nested more than {MAX_DEPTH} deep"
@@ -205,7 +218,7 @@ impl Model {
                 &merged
             }
         };
-        let r = ParamReader::new(decl.name, "", obj, decl.params, &["model"])?;
+        let r = ParamReader::new(decl.name, "", obj, decl.params, &["model"], files)?;
         Ok(match decl.name {
             "lambert" => Model::Lambert(Lambert::from_params(&r)?),
             "mirror" => Model::Mirror(Mirror::from_params(&r)?),
@@ -328,8 +341,11 @@ impl Model {
     /// height-correlated Smith, conductor Fresnel of gold (`au`).
     pub fn default_material() -> Model {
         // A constant spec of this crate: failing to parse it is a bug.
-        Model::parse("ggx:alpha=0.2,shadowing=smith-correlated,fresnel=au")
-            .expect("the default material parses")
+        Model::parse_with(
+            "ggx:alpha=0.2,shadowing=smith-correlated,fresnel=au",
+            &NoFiles,
+        )
+        .expect("the default material parses")
     }
 
     /// Channels `first..first + out.len()` of f(wi, wo) for directions strictly above the
@@ -500,41 +516,22 @@ fn apply_preset(
 /// HTSG.
 const DATA_FILE_PARAMS: &[&str] = &["nk"];
 
-/// Records every data file a model's JSON names, at any depth (sums, Fresnel objects).
-fn record_data_files(v: &Value, reads: &mut crate::reads::ReadSet) {
+/// Every data file a model's JSON names, at any depth (sums, Fresnel objects), `@` removed.
+pub(crate) fn data_files(v: &Value, out: &mut Vec<String>) {
     match v {
         Value::Object(obj) => {
             for (k, v) in obj {
                 match v {
                     Value::String(s) if DATA_FILE_PARAMS.contains(&k.as_str()) => {
-                        reads.record(s.strip_prefix('@').unwrap_or(s));
+                        out.push(s.strip_prefix('@').unwrap_or(s).to_string());
                     }
-                    other => record_data_files(other, reads),
+                    other => data_files(other, out),
                 }
             }
         }
-        Value::Array(items) => items.iter().for_each(|v| record_data_files(v, reads)),
+        Value::Array(items) => items.iter().for_each(|v| data_files(v, out)),
         _ => {}
     }
-}
-
-fn read_spec_file(path: &str) -> Result<Value> {
-    use std::io::Read;
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut text = String::new();
-    // Cap the read: a model spec is small; a huge file is a mistake, not a model.
-    file.take(MAX_SPEC_FILE_BYTES + 1)
-        .read_to_string(&mut text)
-        .map_err(|e| Error::invalid_file(path, format!("not a UTF-8 model spec: {e}")))?;
-    if text.len() as u64 > MAX_SPEC_FILE_BYTES {
-        return Err(Error::invalid_file(
-            path,
-            format!("model spec larger than {MAX_SPEC_FILE_BYTES} bytes"),
-        ));
-    }
-    crate::text::reject_duplicate_json_keys(text.as_bytes())
-        .map_err(|e| Error::invalid_file(path, format!("model JSON: {e}")))?;
-    serde_json::from_str(&text).map_err(|e| Error::invalid_file(path, format!("model JSON: {e}")))
 }
 
 fn truncate(s: &str, n: usize) -> String {

@@ -363,6 +363,8 @@ pub(crate) struct ParamReader<'a> {
     prefix: String,
     obj: &'a Map<String, Value>,
     decls: &'static [ParamDecl],
+    /// Where the files the parameters name are read (`nk = @file.csv`).
+    files: &'a dyn super::SpecFiles,
 }
 
 impl<'a> ParamReader<'a> {
@@ -373,6 +375,7 @@ impl<'a> ParamReader<'a> {
         obj: &'a Map<String, Value>,
         decls: &'static [ParamDecl],
         ignore: &[&str],
+        files: &'a dyn super::SpecFiles,
     ) -> Result<Self> {
         let prefix = prefix.into();
         for key in obj.keys() {
@@ -390,7 +393,13 @@ impl<'a> ParamReader<'a> {
             prefix,
             obj,
             decls,
+            files,
         })
+    }
+
+    /// The reader of the files the parameters name.
+    pub fn files(&self) -> &'a dyn super::SpecFiles {
+        self.files
     }
 
     pub fn context(&self) -> &'a str {

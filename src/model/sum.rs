@@ -67,7 +67,7 @@ impl Sum {
             .iter()
             .enumerate()
             .map(|(i, t)| {
-                Model::from_json_at_depth(t, depth + 1)
+                Model::from_json_at_depth(t, depth + 1, r.files())
                     .map_err(|e| Error::input(format!("{ctx}: terms[{i}]: {e}")))
             })
             .collect::<Result<Vec<Model>>>()?;
