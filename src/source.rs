@@ -32,6 +32,16 @@ pub enum Source {
 }
 
 impl Source {
+    /// The source with negative values of a measured file clamped to 0 when `on` (RGL files
+    /// hold some; by default they are passed through, as the reference evaluator does).
+    /// Tables and models are returned as they are.
+    pub fn clamp_negative(self, on: bool) -> Source {
+        match self {
+            Source::Measured(m) if on => Source::Measured(m.with_clamp_negative(true)),
+            other => other,
+        }
+    }
+
     /// Opens `spec`: a model spec, else an existing file (or `-`) by its content. A model
     /// spec is never shadowed by a file of the same name in the working directory: `./lambert`
     /// (a name starting with `./`, `../` or `/`) always means the file.

@@ -140,12 +140,7 @@ pub struct SamplingArgs {
 impl SamplingArgs {
     /// Applies `--clamp-negative` to an opened source.
     pub fn apply(&self, source: Source) -> Source {
-        match source {
-            Source::Measured(m) if self.clamp_negative => {
-                Source::Measured(m.with_clamp_negative(true))
-            }
-            other => other,
-        }
+        source.clamp_negative(self.clamp_negative)
     }
 
     pub fn options(

@@ -144,12 +144,7 @@ pub fn run(args: EvalArgs) -> anyhow::Result<i32> {
         .into());
     }
     let brdf = crate::source::Source::open(&args.source)
-        .map(|s| match s {
-            crate::source::Source::Measured(m) if args.clamp_negative => {
-                crate::source::Source::Measured(m.with_clamp_negative(true))
-            }
-            other => other,
-        })
+        .map(|s| s.clamp_negative(args.clamp_negative))
         .and_then(|s| s.into_brdf(args.interp.into()))
         .map_err(|e| prefix_error(e, &format!("source {:?}", args.source)))?;
     let format = if args.json {

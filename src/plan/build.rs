@@ -363,10 +363,7 @@ fn write_if_changed(path: &Path, bytes: &[u8]) -> Result<bool> {
 /// Makes a material's output bytes: one table (planned within the budget, or tabulated on the
 /// grid), encoded in each output's format.
 fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> {
-    let source = match Source::open(&m.source)? {
-        Source::Measured(r) if m.clamp_negative => Source::Measured(r.with_clamp_negative(true)),
-        other => other,
-    };
+    let source = Source::open(&m.source)?.clamp_negative(m.clamp_negative);
     let src = scene.restrict_source(source.into_brdf(Lookup::Linear)?)?;
     let options = TabulateOptions {
         allow_anisotropic: m.allow_anisotropic || scene.isotropic == Some(true),
