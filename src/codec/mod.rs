@@ -680,6 +680,7 @@ impl DecodeScratch {
             // already zero, where `resize` wrote every value (17 MB, ~2 ms, for the
             // intermediate of a MERL table decoded with a fresh scratch).
             *v = vec![0.0; n];
+            crate::memory::advise_huge_pages(v);
         } else if v.len() < n {
             v.resize(n, 0.0);
         }
