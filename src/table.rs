@@ -158,6 +158,22 @@ impl Table {
         self
     }
 
+    /// A copy of the samples without the exact f64 values (a MERL file's are twice the size
+    /// of its f32 samples) and without the lookup caches: what a working copy needs when
+    /// only the samples are read.
+    pub fn clone_samples(&self) -> Table {
+        Table {
+            grid: self.grid.clone(),
+            channels: self.channels.clone(),
+            provenance: self.provenance.clone(),
+            data: self.data.clone(),
+            valid: self.valid.clone(),
+            exact: None,
+            bits: BitsCache::default(),
+            cos: CosCache::default(),
+        }
+    }
+
     /// Sets what is interpolated between the samples ([`InterpWeight`]); the samples stay.
     pub fn set_interp_weight(&mut self, weight: InterpWeight) {
         if self.grid.weight() != weight {
