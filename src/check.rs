@@ -226,6 +226,12 @@ pub fn evaluate_pairs(
     candidate: &dyn Brdf,
     set: &SampleSet,
 ) -> Result<(Vec<f64>, Vec<f64>)> {
+    comparable(reference, candidate)?;
+    Ok((evaluate_set(reference, set), evaluate_set(candidate, set)))
+}
+
+/// Refuses two sources whose values cannot be compared channel by channel.
+fn comparable(reference: &dyn Brdf, candidate: &dyn Brdf) -> Result<()> {
     let c = reference.channels().len();
     if candidate.channels().len() != c {
         return Err(Error::input(format!(
@@ -253,7 +259,7 @@ pub fn evaluate_pairs(
             describe(wr, reference.channels())
         )));
     }
-    Ok((evaluate_set(reference, set), evaluate_set(candidate, set)))
+    Ok(())
 }
 
 /// The values of one BRDF at every pair of `set` (pair-major): one side of
@@ -280,74 +286,255 @@ pub fn metrics(set: &SampleSet, f: &[f64], g: &[f64], c: usize, channel: Option<
     };
     let weight = |p: usize| set.weights.as_ref().map_or(1.0, |w| w[p]);
     // ε = 1e-3 · mean |f| (weighted like the other means).
-    let (mut sf, mut sw) = (0.0, 0.0);
+    let mut eps = EpsilonSum::default();
     for p in 0..set.pairs.len() {
         for &k in &chans {
-            let v = f[p * c + k];
-            if v.is_finite() {
-                sf += weight(p) * v.abs();
-                sw += weight(p);
-            }
+            eps.add(weight(p), f[p * c + k]);
         }
     }
-    let eps = if sw > 0.0 { 1e-3 * sf / sw } else { 0.0 };
-    // Avoid 0/0 when the reference is identically zero.
-    let eps = if eps > 0.0 { eps } else { f64::MIN_POSITIVE };
-    let mut m = Metrics {
-        epsilon: eps,
-        ..Default::default()
-    };
-    let (mut se, mut sre, mut sle, mut sw) = (0.0, 0.0, 0.0, 0.0);
-    let (mut sre_core, mut sw_core) = (0.0, 0.0);
-    let mut core_rel = Vec::new();
+    let eps = eps.epsilon();
+    let core_values = set
+        .pairs
+        .iter()
+        .filter(|&&(wi, wo)| in_core(wi, wo))
+        .count()
+        * chans.len();
+    let mut row = Row::new(eps, core_values);
     for (p, &(wi, wo)) in set.pairs.iter().enumerate() {
-        let w = weight(p);
-        let core = in_core(wi, wo);
+        let (w, core) = (weight(p), in_core(wi, wo));
         for &k in &chans {
-            let (fv, gv) = (f[p * c + k], g[p * c + k]);
-            if !gv.is_finite() {
-                m.nonfinite += 1;
-                continue;
-            }
-            if gv < 0.0 {
-                m.negative += 1;
-            }
-            let abs = (gv - fv).abs();
-            let rel = rel_error(fv, gv, eps);
-            se += w * abs * abs;
-            sre += w * rel * rel;
-            let le = log_error(fv, gv, wi.z);
-            sle += w * le * le;
-            sw += w;
-            let at = Pair {
-                wi: wi.to_array(),
-                wo: wo.to_array(),
-            };
-            if abs > m.max_abs {
-                m.max_abs = abs;
-                m.max_abs_at = at;
-            }
-            if rel > m.max_rel {
-                m.max_rel = rel;
-                m.max_rel_at = at;
-            }
-            if core {
-                sre_core += w * rel * rel;
-                sw_core += w;
-                core_rel.push(rel);
-            }
+            let t = Term::new(f[p * c + k], g[p * c + k], wi.z, eps, eps);
+            row.add(w, (wi, wo), core, &t, t.rel);
         }
     }
-    if sw > 0.0 {
-        m.rmse = (se / sw).sqrt();
-        m.rel_rmse = (sre / sw).sqrt();
-        m.log_rmse = (sle / sw).sqrt();
+    row.finish()
+}
+
+/// The weighted sum of |f| that ε of the relative metrics is made of.
+#[derive(Clone, Copy, Debug, Default)]
+struct EpsilonSum {
+    sf: f64,
+    sw: f64,
+}
+
+impl EpsilonSum {
+    /// One reference value of weight `w` (non-finite values do not count).
+    #[inline]
+    fn add(&mut self, w: f64, v: f64) {
+        if v.is_finite() {
+            self.sf += w * v.abs();
+            self.sw += w;
+        }
     }
-    if sw_core > 0.0 {
-        m.rel_rmse_core = (sre_core / sw_core).sqrt();
-        m.p99_rel_core = percentile(&mut core_rel, 0.99);
+
+    /// ε = 1e-3 · mean |f|, never 0 (that would make 0/0 of an identically zero reference).
+    fn epsilon(&self) -> f64 {
+        let eps = if self.sw > 0.0 {
+            1e-3 * self.sf / self.sw
+        } else {
+            0.0
+        };
+        if eps > 0.0 { eps } else { f64::MIN_POSITIVE }
     }
-    m
+}
+
+/// What one (pair, channel) value contributes, computed where the values are evaluated (in
+/// parallel) and summed in the set's order elsewhere: the same numbers either way.
+#[derive(Clone, Copy, Debug)]
+struct Term {
+    /// |g − f|.
+    abs: f64,
+    /// The relative error with ε of the row of all channels pooled.
+    rel: f64,
+    /// The relative error with ε of the value's own channel.
+    rel_own: f64,
+    /// [`log_error`].
+    log: f64,
+    /// g is finite (otherwise only counted as `nonfinite`).
+    finite: bool,
+    /// g < 0.
+    negative: bool,
+}
+
+impl Term {
+    #[inline]
+    fn new(f: f64, g: f64, cos_i: f64, eps_pooled: f64, eps_own: f64) -> Term {
+        if !g.is_finite() {
+            return Term {
+                abs: 0.0,
+                rel: 0.0,
+                rel_own: 0.0,
+                log: 0.0,
+                finite: false,
+                negative: false,
+            };
+        }
+        Term {
+            abs: (g - f).abs(),
+            rel: rel_error(f, g, eps_pooled),
+            rel_own: rel_error(f, g, eps_own),
+            log: log_error(f, g, cos_i),
+            finite: true,
+            negative: g < 0.0,
+        }
+    }
+}
+
+/// One row of a report (all channels pooled, or one channel), fed value by value in the set's
+/// order: the weighted sums and maxima of the metrics, and the largest core relative errors,
+/// as many as the 99th percentile can need. Nothing else is held, however large the set.
+struct Row {
+    m: Metrics,
+    se: f64,
+    sre: f64,
+    sle: f64,
+    sw: f64,
+    sre_core: f64,
+    sw_core: f64,
+    n_core: usize,
+    top: Largest,
+}
+
+/// The quantile of `p99_rel_core`.
+const P99: f64 = 0.99;
+
+impl Row {
+    /// A row with ε `eps` that will see at most `core_values` values in the core region.
+    fn new(eps: f64, core_values: usize) -> Row {
+        Row {
+            m: Metrics {
+                epsilon: eps,
+                ..Default::default()
+            },
+            se: 0.0,
+            sre: 0.0,
+            sle: 0.0,
+            sw: 0.0,
+            sre_core: 0.0,
+            sw_core: 0.0,
+            n_core: 0,
+            top: Largest::new(Largest::needed(core_values, P99)),
+        }
+    }
+
+    /// One value of weight `w` at `pair`; `rel` is `t`'s relative error with this row's ε.
+    #[inline]
+    fn add(&mut self, w: f64, pair: (Vec3, Vec3), core: bool, t: &Term, rel: f64) {
+        let m = &mut self.m;
+        if !t.finite {
+            m.nonfinite += 1;
+            return;
+        }
+        if t.negative {
+            m.negative += 1;
+        }
+        let abs = t.abs;
+        self.se += w * abs * abs;
+        self.sre += w * rel * rel;
+        self.sle += w * t.log * t.log;
+        self.sw += w;
+        if abs > m.max_abs {
+            m.max_abs = abs;
+            m.max_abs_at = Pair {
+                wi: pair.0.to_array(),
+                wo: pair.1.to_array(),
+            };
+        }
+        if rel > m.max_rel {
+            m.max_rel = rel;
+            m.max_rel_at = Pair {
+                wi: pair.0.to_array(),
+                wo: pair.1.to_array(),
+            };
+        }
+        if core {
+            self.sre_core += w * rel * rel;
+            self.sw_core += w;
+            self.n_core += 1;
+            self.top.push(rel);
+        }
+    }
+
+    fn finish(self) -> Metrics {
+        let mut m = self.m;
+        if self.sw > 0.0 {
+            m.rmse = (self.se / self.sw).sqrt();
+            m.rel_rmse = (self.sre / self.sw).sqrt();
+            m.log_rmse = (self.sle / self.sw).sqrt();
+        }
+        if self.sw_core > 0.0 {
+            m.rel_rmse_core = (self.sre_core / self.sw_core).sqrt();
+            m.p99_rel_core = self.top.nearest_rank(self.n_core, P99);
+        }
+        m
+    }
+}
+
+/// The largest values pushed, at most `cap` of them: enough for a high quantile by the
+/// nearest-rank method ([`percentile`]) of a count known only at the end but bounded up front.
+struct Largest {
+    cap: usize,
+    /// The kept values' [`order_key`]s, smallest on top.
+    heap: std::collections::BinaryHeap<std::cmp::Reverse<u64>>,
+}
+
+impl Largest {
+    /// How many of the largest of at most `n` values the q-quantile by [`percentile`] can
+    /// need: the rank counted from the top is n − ⌈q·n⌉ + 1 ≤ (1 − q)·n + 2 (the product's
+    /// rounding moves ⌈q·n⌉ by less than 1 for n < 2⁵²), with a margin.
+    fn needed(n: usize, q: f64) -> usize {
+        ((((1.0 - q) * n as f64).ceil() as usize).saturating_add(4)).min(n)
+    }
+
+    fn new(cap: usize) -> Largest {
+        Largest {
+            cap,
+            heap: std::collections::BinaryHeap::with_capacity(cap.min(1 << 16)),
+        }
+    }
+
+    #[inline]
+    fn push(&mut self, x: f64) {
+        let k = std::cmp::Reverse(order_key(x));
+        if self.heap.len() < self.cap {
+            self.heap.push(k);
+        } else if let Some(mut min) = self.heap.peek_mut()
+            && k < *min
+        {
+            *min = k;
+        }
+    }
+
+    /// The q-quantile by the nearest-rank method of the `n` values pushed: the value
+    /// [`percentile`] returns for them.
+    fn nearest_rank(self, n: usize, q: f64) -> f64 {
+        if n == 0 {
+            return 0.0;
+        }
+        let rank = ((q * n as f64).ceil() as usize).clamp(1, n) - 1;
+        // Descending: the rank-th smallest of n is the (n − 1 − rank)-th largest.
+        let top = self.heap.into_sorted_vec();
+        let from_top = n - 1 - rank;
+        debug_assert!(from_top < top.len(), "{from_top} of {} kept", top.len());
+        // `needed` keeps enough for every n up to the bound; should it not, the smallest
+        // value kept is the nearest upper bound there is.
+        let std::cmp::Reverse(k) = top[from_top.min(top.len() - 1)];
+        from_order_key(k)
+    }
+}
+
+/// A u64 that orders like `f64::total_cmp` (sign bit flipped for positives, all bits for
+/// negatives).
+#[inline]
+fn order_key(x: f64) -> u64 {
+    let b = x.to_bits();
+    if b >> 63 == 1 { !b } else { b | 1 << 63 }
+}
+
+/// The inverse of [`order_key`].
+#[inline]
+fn from_order_key(k: u64) -> f64 {
+    f64::from_bits(if k >> 63 == 1 { k & !(1 << 63) } else { !k })
 }
 
 /// |g − f| / (|f| + ε): the relative error of `rel_rmse`, `max_rel` and `p99_rel_core`.
@@ -404,14 +591,168 @@ pub fn percentile(v: &mut [f64], q: f64) -> f64 {
 
 /// Runs a sample set and reports combined and per-channel metrics.
 pub fn check_set(reference: &dyn Brdf, candidate: &dyn Brdf, set: &SampleSet) -> Result<SetReport> {
-    let (f, g) = evaluate_pairs(reference, candidate, set)?;
+    check_pairs(reference, candidate, &Pairs::Set(set), &set.name, set.seed)
+}
+
+/// Where a check takes its pairs from, chunk by chunk: a sample set held in memory, or the
+/// valid cells of a grid (at their sample positions, weighted by their measure) that `keep`
+/// accepts, generated as they are evaluated.
+enum Pairs<'a> {
+    Set(&'a SampleSet),
+    Cells {
+        grid: &'a Grid,
+        valid: &'a [bool],
+        keep: &'a (dyn Fn(Vec3, Vec3) -> bool + Sync),
+    },
+}
+
+/// Values (pairs × channels) per chunk of a streamed check.
+const CHUNK_VALUES: usize = 1 << 14;
+
+impl Pairs<'_> {
+    /// Chunks of `per` pairs (of `per` cells for a grid: fewer pairs where cells are invalid
+    /// or not kept).
+    fn chunks(&self, per: usize) -> usize {
+        let n = match self {
+            Pairs::Set(s) => s.pairs.len(),
+            Pairs::Cells { valid, .. } => valid.len(),
+        };
+        n.div_ceil(per)
+    }
+
+    /// The pairs and weights of chunk `k` of `per`, in the set's order.
+    fn chunk(&self, k: usize, per: usize) -> (Vec<(Vec3, Vec3)>, Vec<f64>) {
+        match self {
+            Pairs::Set(s) => {
+                let r = k * per..((k + 1) * per).min(s.pairs.len());
+                let w = match &s.weights {
+                    Some(w) => w[r.clone()].to_vec(),
+                    None => vec![1.0; r.len()],
+                };
+                (s.pairs[r].to_vec(), w)
+            }
+            Pairs::Cells { grid, valid, keep } => {
+                let d = grid.axes().len();
+                let mut idx = [0usize; 4];
+                let (mut pairs, mut weights) = (Vec::new(), Vec::new());
+                let end = ((k + 1) * per).min(valid.len());
+                for (f, _) in valid[k * per..end]
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, ok)| **ok)
+                    .map(|(j, ok)| (k * per + j, ok))
+                {
+                    grid.unflatten(f, &mut idx[..d]);
+                    let (wi, wo) = grid.cell_dirs(&idx[..d]);
+                    if keep(wi, wo) {
+                        pairs.push((wi, wo));
+                        weights.push(grid.cell_measure(&idx[..d]));
+                    }
+                }
+                (pairs, weights)
+            }
+        }
+    }
+}
+
+/// Makes chunks `0..n` in parallel, a few at a time, and hands them to `sink` in order: what
+/// `sink` sums is summed in the same order however many threads there are, and only a batch
+/// of chunks is held at once.
+fn for_each_chunk<T: Send>(n: usize, make: impl Fn(usize) -> T + Sync, mut sink: impl FnMut(T)) {
+    let batch = (2 * rayon::current_num_threads()).clamp(8, 32);
+    let mut k = 0;
+    while k < n {
+        let end = (k + batch).min(n);
+        let made: Vec<T> = (k..end).into_par_iter().map(&make).collect();
+        made.into_iter().for_each(&mut sink);
+        k = end;
+    }
+}
+
+/// Combined and per-channel metrics of `candidate` against `reference` over `pairs`, in two
+/// streamed passes: ε from the reference's values, then the sums, maxima and the largest core
+/// errors. Memory: a batch of chunks and the few values the 99th percentile needs, not the
+/// set; the numbers are those of [`metrics`] on the whole set, bit for bit (same terms, summed
+/// in the same order).
+fn check_pairs(
+    reference: &dyn Brdf,
+    candidate: &dyn Brdf,
+    pairs: &Pairs,
+    name: &str,
+    seed: Option<u64>,
+) -> Result<SetReport> {
+    comparable(reference, candidate)?;
     let c = reference.channels().len();
+    let per = (CHUNK_VALUES / c.max(1)).max(1);
+    let chunks = pairs.chunks(per);
+    let eval = |brdf: &dyn Brdf, set: &[(Vec3, Vec3)]| {
+        let mut v = vec![0.0; set.len() * c];
+        for (j, &(wi, wo)) in set.iter().enumerate() {
+            brdf.eval(wi, wo, &mut v[j * c..(j + 1) * c]);
+        }
+        v
+    };
+    // Pass 1: ε of every row (row 0: all channels pooled; row 1 + k: channel k), the count of
+    // pairs and of those in the core region.
+    let mut eps = vec![EpsilonSum::default(); c + 1];
+    let (mut n, mut n_core) = (0usize, 0usize);
+    for_each_chunk(
+        chunks,
+        |k| {
+            let (set, w) = pairs.chunk(k, per);
+            let f = eval(reference, &set);
+            let core = set.iter().filter(|&&(wi, wo)| in_core(wi, wo)).count();
+            (w, f, core)
+        },
+        |(w, f, core)| {
+            n += w.len();
+            n_core += core;
+            for (p, &wp) in w.iter().enumerate() {
+                for k in 0..c {
+                    eps[0].add(wp, f[p * c + k]);
+                }
+            }
+            for (p, &wp) in w.iter().enumerate() {
+                for k in 0..c {
+                    eps[1 + k].add(wp, f[p * c + k]);
+                }
+            }
+        },
+    );
+    let eps: Vec<f64> = eps.iter().map(EpsilonSum::epsilon).collect();
+    let mut rows: Vec<Row> = (0..=c)
+        .map(|r| Row::new(eps[r], if r == 0 { n_core * c } else { n_core }))
+        .collect();
+    // Pass 2: the terms of every value, summed row by row in the set's order.
+    for_each_chunk(
+        chunks,
+        |k| {
+            let (set, w) = pairs.chunk(k, per);
+            let (f, g) = (eval(reference, &set), eval(candidate, &set));
+            let terms: Vec<Term> = (0..set.len() * c)
+                .map(|v| Term::new(f[v], g[v], set[v / c].0.z, eps[0], eps[1 + v % c]))
+                .collect();
+            (set, w, terms)
+        },
+        |(set, w, terms)| {
+            for (p, (&pair, &wp)) in set.iter().zip(&w).enumerate() {
+                let core = in_core(pair.0, pair.1);
+                for k in 0..c {
+                    let t = &terms[p * c + k];
+                    rows[0].add(wp, pair, core, t, t.rel);
+                    rows[1 + k].add(wp, pair, core, t, t.rel_own);
+                }
+            }
+        },
+    );
+    let mut rows = rows.into_iter().map(Row::finish);
+    let combined = rows.next().unwrap_or_default();
     Ok(SetReport {
-        set: set.name.clone(),
-        samples: set.pairs.len(),
-        seed: set.seed,
-        combined: metrics(set, &f, &g, c, None),
-        per_channel: (0..c).map(|k| metrics(set, &f, &g, c, Some(k))).collect(),
+        set: name.to_string(),
+        samples: n,
+        seed,
+        combined,
+        per_channel: rows.collect(),
     })
 }
 
@@ -450,12 +791,6 @@ pub struct CheckReport {
     /// two sources), when one of them is a table stored up to θmax.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub theta_max_deg: Option<f64>,
-}
-
-/// Bytes of the `cells` check set of `n` cells with `channels` values per source: two f64
-/// direction vectors (48), a weight (8) and the two sources' f64 values.
-pub fn cells_set_bytes(n: usize, channels: usize) -> u64 {
-    (n as u64).saturating_mul(56 + 16 * channels as u64)
 }
 
 /// Checks `candidate` against `reference`. `cells`: the candidate table's grid and validity,
@@ -497,16 +832,22 @@ pub fn check(
             &domain(SampleSet::specular(n, opts.seed)),
         )?);
         if let Some((grid, valid)) = cells {
-            // The set holds every valid cell: a pair, a weight and both sources' values.
-            let n = valid.iter().filter(|&&v| v).count();
-            crate::memory::require(
-                &format!("the `cells` check set of {n} cells"),
-                cells_set_bytes(n, candidate.channels().len()),
-            )?;
-            others.push(check_set(
+            // Streamed: the cells are generated chunk by chunk as they are evaluated, never
+            // held as a set (a 4 M-cell table would need 100 bytes per cell more).
+            let keep = |wi: Vec3, wo: Vec3| {
+                theta_max_deg.is_none()
+                    || reference.in_domain(wi, wo) && candidate.in_domain(wi, wo)
+            };
+            others.push(check_pairs(
                 reference,
                 candidate,
-                &domain(SampleSet::cells(grid, valid)),
+                &Pairs::Cells {
+                    grid,
+                    valid,
+                    keep: &keep,
+                },
+                "cells",
+                None,
             )?);
         }
     }
@@ -797,5 +1138,219 @@ mod tests {
             let in_band = |v: &Vec3| (75.0..=89.9 + 1e-9).contains(&v.theta().to_degrees());
             assert!(in_band(wi) || in_band(wo));
         }
+    }
+
+    /// The metrics as `metrics` computed them before the check streamed its sets (the whole
+    /// set's values held, the core errors collected and selected): the reference the
+    /// streamed rows must equal bit for bit.
+    fn held_metrics(
+        set: &SampleSet,
+        f: &[f64],
+        g: &[f64],
+        c: usize,
+        channel: Option<usize>,
+    ) -> Metrics {
+        let chans: Vec<usize> = match channel {
+            Some(k) => vec![k],
+            None => (0..c).collect(),
+        };
+        let weight = |p: usize| set.weights.as_ref().map_or(1.0, |w| w[p]);
+        let (mut sf, mut sw) = (0.0, 0.0);
+        for p in 0..set.pairs.len() {
+            for &k in &chans {
+                let v = f[p * c + k];
+                if v.is_finite() {
+                    sf += weight(p) * v.abs();
+                    sw += weight(p);
+                }
+            }
+        }
+        let eps = if sw > 0.0 { 1e-3 * sf / sw } else { 0.0 };
+        let eps = if eps > 0.0 { eps } else { f64::MIN_POSITIVE };
+        let mut m = Metrics {
+            epsilon: eps,
+            ..Default::default()
+        };
+        let (mut se, mut sre, mut sle, mut sw) = (0.0, 0.0, 0.0, 0.0);
+        let (mut sre_core, mut sw_core) = (0.0, 0.0);
+        let mut core_rel = Vec::new();
+        for (p, &(wi, wo)) in set.pairs.iter().enumerate() {
+            let w = weight(p);
+            for &k in &chans {
+                let (fv, gv) = (f[p * c + k], g[p * c + k]);
+                if !gv.is_finite() {
+                    m.nonfinite += 1;
+                    continue;
+                }
+                if gv < 0.0 {
+                    m.negative += 1;
+                }
+                let abs = (gv - fv).abs();
+                let rel = rel_error(fv, gv, eps);
+                se += w * abs * abs;
+                sre += w * rel * rel;
+                let le = log_error(fv, gv, wi.z);
+                sle += w * le * le;
+                sw += w;
+                let at = Pair {
+                    wi: wi.to_array(),
+                    wo: wo.to_array(),
+                };
+                if abs > m.max_abs {
+                    m.max_abs = abs;
+                    m.max_abs_at = at;
+                }
+                if rel > m.max_rel {
+                    m.max_rel = rel;
+                    m.max_rel_at = at;
+                }
+                if in_core(wi, wo) {
+                    sre_core += w * rel * rel;
+                    sw_core += w;
+                    core_rel.push(rel);
+                }
+            }
+        }
+        if sw > 0.0 {
+            m.rmse = (se / sw).sqrt();
+            m.rel_rmse = (sre / sw).sqrt();
+            m.log_rmse = (sle / sw).sqrt();
+        }
+        if sw_core > 0.0 {
+            m.rel_rmse_core = (sre_core / sw_core).sqrt();
+            m.p99_rel_core = percentile(&mut core_rel, 0.99);
+        }
+        m
+    }
+
+    /// Bit-for-bit equality (NaN included), field by field.
+    fn same_bits(a: &Metrics, b: &Metrics) -> bool {
+        let bits = |m: &Metrics| {
+            [
+                m.rmse,
+                m.rel_rmse,
+                m.max_abs,
+                m.max_rel,
+                m.log_rmse,
+                m.rel_rmse_core,
+                m.p99_rel_core,
+                m.epsilon,
+            ]
+            .map(f64::to_bits)
+        };
+        bits(a) == bits(b)
+            && a.max_abs_at == b.max_abs_at
+            && a.max_rel_at == b.max_rel_at
+            && (a.nonfinite, a.negative) == (b.nonfinite, b.negative)
+    }
+
+    #[test]
+    fn the_streamed_cells_set_equals_the_held_one_bit_for_bit_on_any_thread_count() {
+        use crate::grid::parse_grid_spec;
+        use crate::model::Model;
+        use crate::table::{Interp, InterpolatedTable};
+        // A lossy candidate (f16 of a sharp lobe) against the model, on a θmax grid so that
+        // the domain restriction is part of the stream, and on a full one.
+        let m = Model::parse("lambert:albedo=0.2+ggx:alpha=0.15,fresnel=au").unwrap();
+        for spec in ["halfdiff3:18x20x24,theta-max=70", "spherical4:9x10x9x12"] {
+            let g = parse_grid_spec(spec).unwrap();
+            let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
+            // Values the metrics must count: negative ones and large errors.
+            let mut data = t.data().to_vec();
+            let v = data.len();
+            for k in [v / 3, v / 2, v / 2 + 7, 2 * v / 3] {
+                data[k] = -0.25 * data[k] - 0.01;
+            }
+            let t = crate::table::Table::new(
+                t.grid().clone(),
+                t.channels().clone(),
+                t.provenance().clone(),
+                data,
+                t.valid().to_vec(),
+            )
+            .unwrap();
+            let cand = InterpolatedTable {
+                table: t.clone(),
+                interp: Interp::Linear,
+            };
+            let keep = |wi: Vec3, wo: Vec3| m.in_domain(wi, wo) && cand.in_domain(wi, wo);
+            let held = SampleSet::cells(t.grid(), t.valid()).restricted(keep);
+            let (f, gv) = evaluate_pairs(&m, &cand, &held).unwrap();
+            let c = 3;
+            assert!(held.pairs.len() > 1000, "{spec}: {}", held.pairs.len());
+            for threads in [1, 2, 5] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let streamed = pool
+                    .install(|| {
+                        check_pairs(
+                            &m,
+                            &cand,
+                            &Pairs::Cells {
+                                grid: t.grid(),
+                                valid: t.valid(),
+                                keep: &keep,
+                            },
+                            "cells",
+                            None,
+                        )
+                    })
+                    .unwrap();
+                assert_eq!(streamed.samples, held.pairs.len());
+                let want = held_metrics(&held, &f, &gv, c, None);
+                assert!(want.negative > 0 && want.p99_rel_core > 0.0, "{want:?}");
+                assert!(
+                    same_bits(&streamed.combined, &want),
+                    "{spec}, {threads} threads: {:?}\nvs {want:?}",
+                    streamed.combined
+                );
+                for k in 0..c {
+                    let want = held_metrics(&held, &f, &gv, c, Some(k));
+                    assert!(same_bits(&streamed.per_channel[k], &want), "channel {k}");
+                }
+                // The held path (`metrics`) is the same computation.
+                let want = held_metrics(&held, &f, &gv, c, None);
+                assert!(same_bits(&metrics(&held, &f, &gv, c, None), &want));
+            }
+        }
+    }
+
+    #[test]
+    fn the_largest_values_give_the_nearest_rank_percentile() {
+        // Ties, NaN of both signs, ±0, infinities and negatives, for counts below and at the
+        // bound the row was made for.
+        let mut rng = SplitMix64::new(5);
+        let mut pool: Vec<f64> = (0..20).map(|k| k as f64 * 0.25).collect();
+        pool.extend([f64::NAN, -f64::NAN, 0.0, -0.0, f64::INFINITY, -1.0, 1e-310]);
+        for n in [1usize, 2, 3, 99, 100, 101, 199, 200, 201, 1000, 4321] {
+            for bound in [n, n + 1, 3 * n] {
+                for q in [0.99, 0.5, 0.999, 0.01] {
+                    let v: Vec<f64> = (0..n)
+                        .map(|_| pool[(rng.next_f64() * pool.len() as f64) as usize % pool.len()])
+                        .collect();
+                    let mut top = Largest::new(Largest::needed(bound, q));
+                    v.iter().for_each(|&x| top.push(x));
+                    let mut all = v.clone();
+                    let want = percentile(&mut all, q);
+                    let got = top.nearest_rank(n, q);
+                    assert_eq!(got.to_bits(), want.to_bits(), "n {n} bound {bound} q {q}");
+                }
+            }
+        }
+        for x in [
+            0.0,
+            -0.0,
+            1.5,
+            -2.0,
+            f64::NAN,
+            -f64::NAN,
+            f64::INFINITY,
+            f64::MIN_POSITIVE,
+        ] {
+            assert_eq!(from_order_key(order_key(x)).to_bits(), x.to_bits());
+        }
+        assert_eq!(Largest::new(0).nearest_rank(0, 0.99), 0.0);
     }
 }

@@ -57,9 +57,9 @@ pub fn eval_pointwise(brdf: &dyn Brdf, pairs: &[(Vec3, Vec3)], out: &mut [f64]) 
 /// How [`Evaluable::eval_arrays`] computes values.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct EvalOptions {
-    /// One `Brdf::eval` per pair: the bits `brdfpack eval` prints. Otherwise tables take the
-    /// batched lookup (`Table::eval_batch`, equal to ~1e-12 relative and several times
-    /// faster); other sources give the same bits either way.
+    /// One `Brdf::eval` per pair. Otherwise tables take the batched lookup
+    /// (`Table::eval_batch`, several times faster). Both give the bits `brdfpack eval`
+    /// prints, for every source; `exact` is kept for callers that want the per-pair path.
     pub exact: bool,
     /// Pairs beyond a table's stored θmax give 0 instead of an error.
     pub outside_domain_zero: bool,

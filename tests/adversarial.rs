@@ -20,7 +20,11 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-const BIN: &str = env!("CARGO_BIN_EXE_brdfpack");
+/// The binary under test: this build's, or `BRDFPACK_BIN` (to run the tests against another
+/// build, e.g. the code before issue 20: docs/robustness.md).
+static BIN: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    std::env::var("BRDFPACK_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_brdfpack").to_string())
+});
 
 fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
@@ -123,11 +127,11 @@ impl Run {
         let mut cmd = match &c.shell {
             Some(w) => {
                 let mut s = Command::new("bash");
-                s.arg("-c").arg(w).arg(BIN).args(&c.args);
+                s.arg("-c").arg(w).arg(&*BIN).args(&c.args);
                 s
             }
             None => {
-                let mut s = Command::new(BIN);
+                let mut s = Command::new(&*BIN);
                 s.args(&c.args);
                 s
             }
@@ -220,7 +224,7 @@ impl Run {
     }
 
     fn tabulate(&self, name: &str, spec: &str, grid: &str, extra: &[&str]) -> Vec<u8> {
-        let mut cmd = Command::new(BIN);
+        let mut cmd = Command::new(&*BIN);
         cmd.current_dir(self.d())
             .args(["tabulate", spec, "--grid", grid, "-o", name])
             .args(extra);
@@ -687,7 +691,7 @@ fn odd_paths(run: &mut Run) {
     // Two processes writing the same output at once: both succeed, the file is one of them.
     for round in 0..3 {
         let spawn = |spec: &str| {
-            Command::new(BIN)
+            Command::new(&*BIN)
                 .current_dir(run.d())
                 .args([
                     "tabulate",

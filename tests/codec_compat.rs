@@ -27,7 +27,7 @@ fn an_old_dct_file_decodes_to_what_the_old_binary_decoded() {
     );
     let eps = match &header.codec {
         CodecSpec::Dct { transform, .. } => match &transform.curve {
-            Curve::Log { eps } => eps.clone(),
+            Curve::Log { eps } | Curve::SignedLog { eps } => eps.clone(),
             Curve::Linear => vec![0.0; 3],
         },
         _ => unreachable!(),
@@ -154,7 +154,7 @@ fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
     };
     assert_eq!(coding.model, ContextModel::EveryPosition);
     let eps = match &transform.curve {
-        Curve::Log { eps } => eps.clone(),
+        Curve::Log { eps } | Curve::SignedLog { eps } => eps.clone(),
         Curve::Linear => vec![0.0; 3],
     };
     // The same tolerance as the `dct` file above, for the same reason (the fast inverse DCT

@@ -47,9 +47,8 @@ class Source:
         """f_r at the pairs of `wi`, `wo` (arrays of shape (N, 3), any finite non-zero
         vectors, normalized) as float64 of shape (N, channels); 0 below the horizon.
 
-        `exact`: one evaluation per pair, the bits `brdfpack eval` prints; otherwise tables
-        take the batched lookup (equal to ~1e-12 relative, several times faster; other
-        sources give the same bits either way). Pairs beyond a table's stored θmax raise
+        Values are the bits `brdfpack eval` prints. `exact`: one evaluation per pair;
+        otherwise tables take the batched lookup (the same bits, several times faster). Pairs beyond a table's stored θmax raise
         unless `outside_domain_zero`. `out`: a C-contiguous float64 array of shape
         (N, channels) to write into (and return) instead of a new one."""
     def table(self) -> Optional[Table]:

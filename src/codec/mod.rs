@@ -678,6 +678,7 @@ impl DecodeScratch {
             // already zero, where `resize` wrote every value (17 MB, ~2 ms, for the
             // intermediate of a MERL table decoded with a fresh scratch).
             *v = vec![0.0; n];
+            crate::memory::advise_huge_pages(v);
         } else if v.len() < n {
             v.resize(n, 0.0);
         }
@@ -896,6 +897,10 @@ pub enum CurveRequest {
     Log {
         eps_rel: f64,
     },
+    /// The signed log curve (`Curve::SignedLog`), ε_c = `eps_rel` × mean |x| of channel c.
+    SignedLog {
+        eps_rel: f64,
+    },
 }
 
 /// A codec as asked for on the command line, before data-derived parameters are known.
@@ -1016,8 +1021,9 @@ impl CodecRequest {
         };
         let curve = match take("curve").as_deref() {
             None | Some("log") => CurveRequest::Log { eps_rel },
+            Some("signed-log") => CurveRequest::SignedLog { eps_rel },
             Some("linear") => CurveRequest::Linear,
-            Some(v) => return Err(bad("curve", v, "log or linear")),
+            Some(v) => return Err(bad("curve", v, "log, signed-log or linear")),
         };
         let colour = match take("colour").as_deref() {
             None | Some("klt") => true,
@@ -1404,7 +1410,8 @@ fn valid_values<'a>(z: &'a [f64], valid: &'a [bool], c: usize) -> impl Iterator<
 pub fn curve_for(table: &Table, req: CurveRequest, weight: Option<Weight>) -> Curve {
     match req {
         CurveRequest::Linear => Curve::Linear,
-        CurveRequest::Log { eps_rel } => {
+        CurveRequest::Log { eps_rel } | CurveRequest::SignedLog { eps_rel } => {
+            let signed = matches!(req, CurveRequest::SignedLog { .. });
             let c = table.channels().len();
             let w = weight.map(|w| w.cells(table.grid(), table.valid()));
             let mut sum = vec![0.0f64; c];
@@ -1414,7 +1421,8 @@ pub fn curve_for(table: &Table, req: CurveRequest, weight: Option<Weight>) -> Cu
                     n += 1;
                     let wf = w.as_ref().map_or(1.0, |w| w[cell]);
                     for (k, s) in sum.iter_mut().enumerate() {
-                        *s += wf * table.data()[cell * c + k].max(0.0) as f64;
+                        let x = table.data()[cell * c + k];
+                        *s += wf * if signed { x.abs() } else { x.max(0.0) } as f64;
                     }
                 }
             }
@@ -1427,7 +1435,11 @@ pub fn curve_for(table: &Table, req: CurveRequest, weight: Option<Weight>) -> Cu
                     if e > 0.0 && e.is_finite() { e } else { 1e-6 }
                 })
                 .collect();
-            Curve::Log { eps }
+            if signed {
+                Curve::SignedLog { eps }
+            } else {
+                Curve::Log { eps }
+            }
         }
     }
 }
@@ -1675,7 +1687,7 @@ mod tests {
             // ε is in the units of the coded quantity w·x: ε/w in those of x.
             let w = weights.as_ref().map_or(1.0, |w| w[i / c]) as f32;
             let eps = match curve {
-                Some(Curve::Log { eps }) => eps[i % c] as f32 / w,
+                Some(Curve::Log { eps } | Curve::SignedLog { eps }) => eps[i % c] as f32 / w,
                 _ => 0.0,
             };
             let linear_quantized =
@@ -1739,6 +1751,104 @@ mod tests {
             let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
             assert_matches_reference(&t, &spec, s);
         }
+    }
+
+    /// [`small_table`] shifted down so that about a fifth of its valid values are negative,
+    /// as in a measured fit to noisy data.
+    fn signed_table() -> Table {
+        let t = small_table();
+        let data: Vec<f32> = t
+            .data()
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| v - 2.5 + 0.3 * ((i * 7919 % 13) as f32 / 13.0))
+            .collect();
+        let valid = t.valid().to_vec();
+        Table::new(
+            t.grid().clone(),
+            t.channels().clone(),
+            t.provenance().clone(),
+            data,
+            valid,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn the_signed_log_curve_keeps_negative_values() {
+        let t = signed_table();
+        let values: Vec<f32> = t
+            .data()
+            .chunks_exact(3)
+            .zip(t.valid())
+            .filter(|(_, ok)| **ok)
+            .flat_map(|(v, _)| v.iter().copied())
+            .collect();
+        let negative = values.iter().filter(|&&v| v < 0.0).count();
+        assert!(
+            negative * 10 > values.len() && negative * 2 < values.len(),
+            "{negative} of {} negative",
+            values.len()
+        );
+        // Channel 0's mean |x| over valid cells: its ε is 1e-3 of that.
+        let ch0: Vec<f64> = values.iter().step_by(3).map(|v| v.abs() as f64).collect();
+        let mean_abs = ch0.iter().sum::<f64>() / ch0.len() as f64;
+        for s in [
+            "f16:curve=signed-log",
+            "uniform:bits=12,curve=signed-log",
+            "dct:step=0.002,curve=signed-log",
+            "dct:step=0.002,curve=signed-log,coding=zstd,colour=none",
+            "dct:step=0.002,curve=signed-log,weight=cosine",
+            "tucker:ranks=8x8x12,step=0.002,curve=signed-log",
+            "dct:step=0.3,curve=signed-log,residual=0.003",
+        ] {
+            let spec = CodecRequest::parse(s).unwrap().resolve(&t).unwrap();
+            let json = serde_json::to_string(&spec).unwrap();
+            assert!(json.contains("signed_log"), "{s}: {json}");
+            let back: CodecSpec = serde_json::from_str(&json).unwrap();
+            assert_eq!(back, spec, "{s}");
+            let text = CodecRequest::parse(s).unwrap().to_string();
+            assert!(text.contains("curve=signed-log"), "{s}: {text}");
+            let tr = spec.transform().unwrap();
+            let eps = tr.curve.eps().unwrap()[0];
+            // The curve's ε is in the units of w·x: ε/w in those of x.
+            let w = tr.cell_weights(t.grid(), t.valid());
+            if w.is_none() {
+                // ε relative to the mean |x| (the default 1e-3), not to the mean x.
+                assert!((eps / (1e-3 * mean_abs) - 1.0).abs() < 1e-6, "{s}: ε {eps}");
+            }
+            let payload = spec.encode(&t).unwrap();
+            let dec = back.decode(&payload, &Layout::of(&t)).unwrap();
+            let mut worst = 0f64;
+            for (cell, &ok) in t.valid().iter().enumerate() {
+                for k in 0..3 {
+                    let (a, b) = (dec[cell * 3 + k] as f64, t.data()[cell * 3 + k] as f64);
+                    if !ok {
+                        assert_eq!(a, 0.0, "{s}: invalid cell {cell}");
+                        continue;
+                    }
+                    // Relative to |x| + ε on both sides of 0: the steps above are fine ones.
+                    let eps = eps / w.as_ref().map_or(1.0, |w| w[cell]);
+                    let rel = (a - b).abs() / (b.abs() + eps);
+                    worst = worst.max(rel);
+                    assert!(rel <= 0.05, "{s}: cell {cell}: {a} vs {b} (ε {eps})");
+                    if b.abs() > 10.0 * eps {
+                        assert_eq!(a < 0.0, b < 0.0, "{s}: cell {cell}: {a} vs {b}");
+                    }
+                }
+            }
+            assert_matches_reference(&t, &spec, s);
+            eprintln!("{s}: worst relative error {worst:.2e}");
+        }
+        // The log curve clamps them at 0: a relative error of 1 at every negative value.
+        let spec = CodecRequest::parse("dct:step=0.002")
+            .unwrap()
+            .resolve(&t)
+            .unwrap();
+        let dec = spec
+            .decode(&spec.encode(&t).unwrap(), &Layout::of(&t))
+            .unwrap();
+        assert!(dec.iter().all(|&v| v >= 0.0));
     }
 
     /// A random `halfdiff3:a×b×cc` table (1 or 3 channels): 5% zeros, the rest spread over
@@ -2068,7 +2178,7 @@ mod tests {
                 };
                 let rounding = |f: usize, k: usize| match &tr.curve {
                     Curve::Linear => 4.8e-7 * (w[f] * t.data()[f * c + k].abs() as f64 + norm(f)),
-                    Curve::Log { .. } => 2.4e-7 * (2.0 + norm(f)),
+                    Curve::Log { .. } | Curve::SignedLog { .. } => 2.4e-7 * (2.0 + norm(f)),
                 };
                 let valid = |f: &usize| t.valid()[*f];
                 let cells = t.grid().cells();

@@ -58,6 +58,7 @@ fn curve(f: &mut fmt::Formatter, c: &CurveRequest) -> fmt::Result {
         // `{:?}` of an f64 parses back to the same value (`{}` would too, but writes 1e300
         // with 300 zeros).
         CurveRequest::Log { eps_rel } => write!(f, "curve=log,eps={eps_rel:?}"),
+        CurveRequest::SignedLog { eps_rel } => write!(f, "curve=signed-log,eps={eps_rel:?}"),
     }
 }
 

@@ -11,7 +11,7 @@
 #![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
 
 use super::Layout;
-use super::transform::{Curve, Transform};
+use super::transform::{Curve, Transform, signed_log_inverse_f32};
 
 // The CPU-feature detector and the portable/AVX2 dispatch are the crate's one pair
 // (`crate::simd`).
@@ -163,6 +163,8 @@ pub(crate) struct Finisher {
     /// Mᵀ applied as y_k = Σ_i m[i·c + k] z_i (the identity without colour).
     m: Vec<f32>,
     eps: Option<Vec<f32>>,
+    /// The signed log curve (`Curve::SignedLog`): values keep their sign.
+    signed: bool,
     colour: bool,
     /// 1/w of every cell of the layout, computed once per decode (weighted transforms only).
     rw: Option<Vec<f32>>,
@@ -180,17 +182,21 @@ impl Finisher {
                 .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
                 .collect(),
         };
-        let eps = match &t.curve {
-            Curve::Linear => None,
-            Curve::Log { eps } => Some(eps.iter().map(|&e| e as f32).collect()),
-        };
+        let eps = t
+            .curve
+            .eps()
+            .map(|eps| eps.iter().map(|&e| e as f32).collect());
+        let signed = t.curve.is_signed();
         Finisher {
             c,
             m,
             eps,
+            signed,
             colour: t.colour.is_some(),
             rw: t.reciprocal_weights(layout.grid, layout.valid),
-            avx2: avx2(),
+            // The hand-written blocks know the unsigned curves; signed tables (rare: noisy
+            // measured fits) take the portable blocks.
+            avx2: avx2() && !signed,
         }
     }
 
@@ -210,6 +216,7 @@ impl Finisher {
             c,
             m,
             eps: Some(eps),
+            signed: false,
             colour: true,
             rw: None,
             avx2: avx2(),
@@ -223,6 +230,7 @@ impl Finisher {
             c: self.c,
             m: self.m.clone(),
             eps: self.eps.clone(),
+            signed: self.signed,
             colour: self.colour,
             rw: self.rw.clone(),
             avx2: self.avx2 && !portable,
@@ -616,7 +624,11 @@ impl Finisher {
             } else {
                 y[k] = z[k];
             }
-            if self.eps.is_some() {
+            if self.signed {
+                for l in 0..LANES {
+                    y[k][l] = signed_log_inverse_f32(y[k][l], ee[k]);
+                }
+            } else if self.eps.is_some() {
                 for l in 0..LANES {
                     y[k][l] = non_negative(exp_f32(y[k][l]) - ee[k]);
                 }
@@ -645,7 +657,11 @@ impl Finisher {
                     } else {
                         planes[k][f]
                     };
-                    let v = curve_inverse(y, self.eps.as_ref().map(|e| e[k]));
+                    let e = self.eps.as_ref().map(|e| e[k]);
+                    let v = match e {
+                        Some(e) if self.signed => signed_log_inverse_f32(y, e),
+                        _ => curve_inverse(y, e),
+                    };
                     match &self.rw {
                         Some(r) => scale_finite(v, r[f]),
                         None => v,
@@ -688,11 +704,24 @@ fn finish_cn(f: &Finisher, p: &[&[f32]], v: &[bool], o: &mut [f32]) {
 /// The inverse curve applied in place to cell-major values (`c` per cell); invalid cells set
 /// to 0.
 pub fn curve_interleaved(curve: &Curve, c: usize, valid: &[bool], v: &mut [f32]) {
-    let eps: Option<Vec<f32>> = match curve {
-        Curve::Linear => None,
-        // ε repeated over a block of LANES cells, so the block loop is a plain vector loop.
-        Curve::Log { eps } => Some((0..LANES * c).map(|j| eps[j % c] as f32).collect()),
-    };
+    // ε repeated over a block of LANES cells, so the block loop is a plain vector loop.
+    let eps: Option<Vec<f32>> = curve
+        .eps()
+        .map(|eps| (0..LANES * c).map(|j| eps[j % c] as f32).collect());
+    if curve.is_signed() {
+        let eps = eps.expect("the signed curve has ε");
+        for (blk, ok) in v.chunks_mut(LANES * c).zip(valid.chunks(LANES)) {
+            for (x, &e) in blk.iter_mut().zip(&eps) {
+                *x = signed_log_inverse_f32(*x, e);
+            }
+            for (cell, &ok) in blk.chunks_exact_mut(c).zip(ok) {
+                if !ok {
+                    cell.fill(0.0);
+                }
+            }
+        }
+        return;
+    }
     curve_block(eps.as_deref(), c, valid, v)
 }
 
@@ -739,7 +768,8 @@ fn scale_impl(rw: &[f32], c: usize, v: &mut [f32]) {
 /// pass f32::MAX and saturates there, so a weighted decode never returns Inf either.
 #[inline(always)]
 fn scale_finite(v: f32, rw: f32) -> f32 {
-    (v * rw).min(f32::MAX)
+    // `max` as well for the signed curve's negative values (a no-op for v ≥ 0).
+    (v * rw).clamp(-f32::MAX, f32::MAX)
 }
 
 /// The linear inverse as in `Curve::inverse_f32`: clamped at 0 (ringing next to a 1e9 peak
@@ -856,6 +886,7 @@ mod tests {
                         .collect()
                 },
                 eps: log.then(|| (0..c).map(|k| 1e-3 * (k + 1) as f32).collect()),
+                signed: false,
                 colour,
                 rw: None,
                 avx2: true,

@@ -1,5 +1,5 @@
 //! Stage (2), transform: an optional per-cell weight (cosine: w = cos θi cos θo), a per-channel
-//! curve (linear or log(ε + x)) and an optional colour decorrelation (an orthonormal c×c matrix,
+//! curve (linear, log(ε + x), or its odd extension for signed tables) and an optional colour decorrelation (an orthonormal c×c matrix,
 //! the Karhunen–Loève transform of the table's channels, recorded in the header). The coded
 //! components of a cell are z = M curve(w·x); the decoder returns curve⁻¹(Mᵀ z) / w.
 
@@ -17,12 +17,17 @@ pub enum Curve {
     /// regions get the same relative precision above ε_c. Lossy codecs drop negative values
     /// (they are below every ε the search tries).
     Log { eps: Vec<f64> },
+    /// y = sign(x) · ln(1 + |x|/ε_c), the odd extension of the log curve (ln(ε_c + x) − ln ε_c
+    /// for x ≥ 0): for tables that hold negative values (measured files fitted to noisy data,
+    /// RGL files among them), which the metrics compare with the same relative precision as
+    /// positive ones. Decoded values keep their sign.
+    SignedLog { eps: Vec<f64> },
 }
 
 impl Curve {
     /// Checks the curve against the channel count.
     pub fn validate(&self, channels: usize) -> Result<()> {
-        if let Curve::Log { eps } = self
+        if let Some(eps) = self.eps()
             && (eps.len() != channels || eps.iter().any(|e| !(e.is_finite() && *e > 0.0)))
         {
             return Err(Error::input(format!(
@@ -31,11 +36,26 @@ impl Curve {
         }
         Ok(())
     }
+
+    /// ε per channel of the log curves.
+    pub fn eps(&self) -> Option<&[f64]> {
+        match self {
+            Curve::Linear => None,
+            Curve::Log { eps } | Curve::SignedLog { eps } => Some(eps),
+        }
+    }
+
+    /// True when decoded values keep their sign (otherwise they are clamped at 0).
+    pub fn is_signed(&self) -> bool {
+        matches!(self, Curve::SignedLog { .. })
+    }
     #[inline]
     pub fn forward(&self, x: f64, ch: usize) -> f64 {
         match self {
             Curve::Linear => x,
             Curve::Log { eps } => (eps[ch] + x.max(0.0)).ln(),
+            // ln_1p keeps |x| ≪ ε exact to the ulp (ln(ε + |x|) − ln ε would cancel).
+            Curve::SignedLog { eps } => (x.abs() / eps[ch]).ln_1p().copysign(x),
         }
     }
     #[inline]
@@ -46,6 +66,7 @@ impl Curve {
             Curve::Linear => y.max(0.0),
             // Clamp: quantization error may push a value just below 0.
             Curve::Log { eps } => (y.exp() - eps[ch]).max(0.0),
+            Curve::SignedLog { eps } => (eps[ch] * y.abs().exp_m1()).copysign(y),
         }
     }
     /// f32 inverse for the decoder's hot loop (same formula), saturated like [`finite_f32`].
@@ -55,6 +76,7 @@ impl Curve {
             // Clamp at 0 as in `inverse`.
             Curve::Linear => y.max(0.0),
             Curve::Log { eps } => (y.exp() - eps[ch] as f32).max(0.0),
+            Curve::SignedLog { eps } => signed_log_inverse_f32(y, eps[ch] as f32),
         };
         if v.is_nan() {
             0.0
@@ -62,6 +84,19 @@ impl Curve {
             v.clamp(-f32::MAX, f32::MAX)
         }
     }
+}
+
+/// The inverse of the signed log curve in f32: sign(y) · ε · (e^|y| − 1), written with the
+/// decoders' own exponential (`simd::exp_f32`) so that every decoder path gives the same bits.
+/// e^|y| − 1 loses relative precision for |y| ≪ 1, where |x| ≪ ε: errors there are below ε,
+/// the level the metrics' relative errors are measured against.
+#[inline(always)]
+pub(crate) fn signed_log_inverse_f32(y: f32, eps: f32) -> f32 {
+    // `exp_f32` clamps its argument, but ε · e^88 can still pass f32::MAX: saturate there
+    // (a NaN y reads as e^EXP_MIN − 1 < 0, so as a tiny magnitude, never NaN).
+    let v = eps * (super::simd::exp_f32(y.abs()) - 1.0);
+    let v = if v < f32::MAX { v.max(0.0) } else { f32::MAX };
+    v.copysign(y)
 }
 
 /// A decoded sample as a finite f32. A valid request can still leave the f32 range on the way
@@ -293,6 +328,8 @@ enum CurveRecord {
     Log { eps: Vec<f64> },
     CosineLinear,
     CosineLog { eps: Vec<f64> },
+    SignedLog { eps: Vec<f64> },
+    CosineSignedLog { eps: Vec<f64> },
 }
 
 impl From<TransformRecord> for Transform {
@@ -302,6 +339,10 @@ impl From<TransformRecord> for Transform {
             CurveRecord::Log { eps } => (Curve::Log { eps }, None),
             CurveRecord::CosineLinear => (Curve::Linear, Some(Weight::Cosine)),
             CurveRecord::CosineLog { eps } => (Curve::Log { eps }, Some(Weight::Cosine)),
+            CurveRecord::SignedLog { eps } => (Curve::SignedLog { eps }, None),
+            CurveRecord::CosineSignedLog { eps } => {
+                (Curve::SignedLog { eps }, Some(Weight::Cosine))
+            }
         };
         Transform {
             curve,
@@ -318,6 +359,10 @@ impl From<Transform> for TransformRecord {
             (Curve::Log { eps }, None) => CurveRecord::Log { eps },
             (Curve::Linear, Some(Weight::Cosine)) => CurveRecord::CosineLinear,
             (Curve::Log { eps }, Some(Weight::Cosine)) => CurveRecord::CosineLog { eps },
+            (Curve::SignedLog { eps }, None) => CurveRecord::SignedLog { eps },
+            (Curve::SignedLog { eps }, Some(Weight::Cosine)) => {
+                CurveRecord::CosineSignedLog { eps }
+            }
         };
         TransformRecord {
             curve,
@@ -507,25 +552,57 @@ mod tests {
         assert_eq!(serde_json::from_str::<Transform>(lin).unwrap(), t);
         assert!(serde_json::from_str::<Curve>(lin).is_err());
         assert!(serde_json::from_str::<Transform>(r#"{"curve":"sine_log","eps":[1]}"#).is_err());
+        for (curve, weight, json) in [
+            (
+                Curve::SignedLog { eps: vec![0.5] },
+                None,
+                r#"{"curve":"signed_log","eps":[0.5]}"#,
+            ),
+            (
+                Curve::SignedLog { eps: vec![0.5] },
+                Some(Weight::Cosine),
+                r#"{"curve":"cosine_signed_log","eps":[0.5]}"#,
+            ),
+        ] {
+            let t = Transform {
+                curve,
+                colour: None,
+                weight,
+            };
+            assert_eq!(serde_json::to_string(&t).unwrap(), json);
+            assert_eq!(serde_json::from_str::<Transform>(json).unwrap(), t);
+        }
+        // Huge ε and y saturate, NaN reads as a tiny magnitude: never non-finite.
+        let s = Curve::SignedLog { eps: vec![1e38] };
+        assert_eq!(s.inverse_f32(100.0, 0), f32::MAX);
+        assert_eq!(s.inverse_f32(-100.0, 0), -f32::MAX);
+        assert!(s.inverse_f32(f32::NAN, 0).abs() < 1e38);
     }
 
     proptest! {
+        /// Forward then inverse of both log curves (the signed one on values of either sign),
+        /// with a colour rotation: x comes back to 1e-5 of |x| + ε, and the decoders' f32
+        /// inverse of the exact curve value too.
         #[test]
-        fn transform_round_trips(x in prop::collection::vec(0.0f32..1e4, 3), e in 1e-6f64..1.0,
-                                 a in -3.0f64..3.0) {
+        fn transform_round_trips(x in prop::collection::vec(-1e4f32..1e4, 3), e in 1e-6f64..1.0,
+                                 a in -3.0f64..3.0, signed in any::<bool>()) {
             let g = crate::grid::parse_grid_spec("spherical3:1").unwrap();
-            let t = Transform {
-                curve: Curve::Log { eps: vec![e; 3] },
-                colour: Some(rotation(a)),
-                weight: None,
+            let (curve, x): (Curve, Vec<f32>) = if signed {
+                (Curve::SignedLog { eps: vec![e; 3] }, x)
+            } else {
+                (Curve::Log { eps: vec![e; 3] }, x.iter().map(|v| v.abs()).collect())
             };
+            let t = Transform { curve, colour: Some(rotation(a)), weight: None };
             t.validate(3).unwrap();
             let z = t.forward_all(&x, 3, &g, &[true]);
             let mut y = [0.0; 3];
             let mut back = [0f32; 3];
             t.inverse_cell(&z, &mut y, 1.0, &mut back);
             for k in 0..3 {
-                prop_assert!((back[k] - x[k]).abs() <= 1e-5 * (x[k] + e as f32) + 1e-6);
+                let tol = 1e-5 * (x[k].abs() + e as f32) + 1e-6;
+                prop_assert!((back[k] - x[k]).abs() <= tol);
+                let v = t.curve.inverse_f32(t.curve.forward(x[k] as f64, k) as f32, k);
+                prop_assert!((v - x[k]).abs() <= tol, "{} vs {}", v, x[k]);
             }
         }
 

@@ -98,8 +98,10 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     let interpolated;
     let (source, start, refine): (&dyn Brdf, Option<Grid>, bool) = match &input {
         PackInput::Table(t) => {
+            // The reference is looked up from the f32 samples: the exact f64 values (35 MB
+            // on a MERL file) stay with the caller's table.
             interpolated = crate::table::InterpolatedTable {
-                table: (*t).clone(),
+                table: t.clone_samples(),
                 interp: crate::table::Interp::Linear,
             };
             (&interpolated, None, false)
@@ -149,7 +151,9 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 progress(&format!("tabulating on {}", g.describe()));
                 (g.describe(), tabulate(source, g, options)?)
             }
-            (PackInput::Table(t), _) => (t.grid().describe(), (*t).clone()),
+            // The encoder reads the f32 samples; a lossless result takes the exact values
+            // back from the input at the end.
+            (PackInput::Table(t), _) => (t.grid().describe(), t.clone_samples()),
             (PackInput::Source { .. }, None) => unreachable!("a source always has a grid"),
         };
         let tabulate_s = t.elapsed().as_secs_f64();
@@ -215,6 +219,8 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             tabulate_s,
             ..
         } = current;
+        // The grid a refinement starts from (the table itself may become the best so far).
+        let base = table.grid().desc();
         let met = match outcome {
             RateOutcome::GridTooCoarse { .. } => {
                 attempts.push(GridAttempt {
@@ -245,7 +251,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                     .is_none_or(|b| e.payload.len() < b.3.payload.len());
                 let had_best = best.is_some();
                 if smaller {
-                    best = Some((k, table.clone(), spec, *e, tabulate_s, encode_s));
+                    best = Some((k, table, spec, *e, tabulate_s, encode_s));
                 }
                 // A refinement that did not make a smaller file ends the walk.
                 !had_best || smaller
@@ -275,7 +281,6 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         // Which axis to refine is measured, not assumed: every axis doubled in turn, and the
         // grid whose own error uses the least of the budget is kept (a narrow peak wants θh,
         // the grazing 1/(cos θi cos θo) growth wants θd, anisotropy wants φ).
-        let base = table.grid().desc();
         let mut next: Option<(f64, Tabulated)> = None;
         for a in 0..base.axes.len() {
             let mut d = base.clone();
@@ -318,9 +323,16 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         current = cand;
         refinements += 1;
     }
-    let Some((k, table, grid, encoded, tabulate_s, encode_s)) = best else {
+    let Some((k, mut table, grid, encoded, tabulate_s, encode_s)) = best else {
         return Err(Error::Failure(no_grid_message(&settings.budget, &attempts)));
     };
+    // A lossless file carries the input's exact f64 values, as `compress --codec` writes it.
+    if let PackInput::Table(t) = &input
+        && encoded.spec.is_lossless()
+        && let Some(exact) = t.exact()
+    {
+        table = table.with_exact(exact.clone())?;
+    }
     attempts[k].chosen = true;
     Ok(Planned {
         table,

@@ -182,6 +182,11 @@ pub fn encode_within(
     let mut best: Option<(CodecSpec, Vec<u8>, Estimate)> = None;
     let mut scratch = DecodeScratch::default();
     let mut decoded = vec![0f32; table.data().len()];
+    let has_negative = table
+        .data()
+        .chunks_exact(c)
+        .zip(table.valid())
+        .any(|(v, &ok)| ok && v.iter().any(|&x| x < 0.0));
     let variants = effort.variants();
     let mut by_scale: Vec<f64> = Vec::new();
     for v in &variants {
@@ -193,7 +198,15 @@ pub fn encode_within(
         let t = Instant::now();
         progress("transforming (log curve, colour)");
         let eps = (scale * est.epsilon()).max(f64::MIN_POSITIVE);
-        let transform = transform_with_curve(table, Curve::Log { eps: vec![eps; c] }, true, None);
+        // A table with negative values (a noisy measured fit) keeps their sign: the metrics
+        // compare them with the source's like any other value, and the log curve would
+        // decode them as 0 (a relative error of 1 at each).
+        let curve = if has_negative {
+            Curve::SignedLog { eps: vec![eps; c] }
+        } else {
+            Curve::Log { eps: vec![eps; c] }
+        };
+        let transform = transform_with_curve(table, curve, true, None);
         progress("forward DCT");
         let dims = table.grid().shape();
         let coefs: Vec<Vec<f64>> = filled_planes(table, &transform)
@@ -601,6 +614,55 @@ mod tests {
                 "step {s}: predicted {d}, decoded {direct}"
             );
         }
+    }
+
+    #[test]
+    fn a_table_with_negative_values_keeps_them_within_the_budget() {
+        // A measured fit to noisy data: a diffuse + glossy table with values shifted so that
+        // the dark ones go below 0 (cc_ibiza_sunset_rgb.bsdf holds 19% negative values). The
+        // source is the table itself, so the budget is the codec's alone.
+        let m = Model::parse("lambert:albedo=0.3+ggx:alpha=0.2,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:24x24x32,warp=sqrt/linear/linear").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        let shift = 0.12f32;
+        let data: Vec<f32> = t
+            .data()
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| if t.valid()[i / 3] { v - shift } else { 0.0 })
+            .collect();
+        let t = Table::new(
+            g,
+            t.channels().clone(),
+            t.provenance().clone(),
+            data,
+            t.valid().to_vec(),
+        )
+        .unwrap();
+        let negative = t.data().iter().filter(|&&v| v < 0.0).count();
+        assert!(negative * 20 > t.data().len(), "{negative} negative values");
+        let source = crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: crate::table::Interp::Linear,
+        };
+        let reference = ReferenceSet::new(&source, 1 << 15);
+        let est = ErrorEstimator::new(&t, &reference, None, 1 << 14).unwrap();
+        let budget = Budget::parse("log_rmse=0.01,p99_rel_core=0.2").unwrap();
+        let RateOutcome::Encoded(e) =
+            encode_within(&t, &est, &budget, Effort::Default, &|_| {}).unwrap()
+        else {
+            panic!("the table is its own source: the grid costs nothing");
+        };
+        assert!(budget.met_by(&e.estimate.upper), "{:?}", e.estimate.upper);
+        assert!(!e.spec.is_lossless(), "{:?}", e.spec);
+        assert!(e.spec.transform().unwrap().curve.is_signed());
+        let back = e.spec.decode(&e.payload, &Layout::of(&t)).unwrap();
+        let kept = back.iter().filter(|&&v| v < 0.0).count();
+        assert!(
+            kept * 10 > negative * 9,
+            "{kept} of {negative} negative values kept"
+        );
+        assert_eq!(est.measure(&back), e.estimate);
     }
 
     #[test]

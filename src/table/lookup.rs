@@ -5,7 +5,9 @@
 //! (cos φh = h.x/r, sin θh = r/|h| ..., with one division for both 1/r and 1/|h|), the angles
 //! come from a branch-free atan ([`crate::math::atan::atan2_first_quadrant`], one division for the ratio),
 //! the index maps multiply by a precomputed 1/span, and the loop over a block of pairs has no
-//! calls or branches, so it vectorizes. Results agree with the generic path to ~1e-15 in angle.
+//! calls or branches, so it vectorizes. Results agree with the generic path to ~1e-15 in angle;
+//! `Table::eval_into` takes these angles too on the grids where they apply
+//! ([`HalfdiffIndexer::index_one`]), so per-pair and batched lookups have the same bits.
 
 use crate::geometry::Vec3;
 use crate::grid::{Axis, Grid, GridKind, Warp};
@@ -87,6 +89,15 @@ impl HalfdiffIndexer {
             return unsafe { self.indices_avx2(pairs, t, ok) };
         }
         self.indices_impl(pairs, t, ok)
+    }
+
+    /// The continuous indices of one pair, as [`HalfdiffIndexer::indices`] gives them (the
+    /// portable and AVX2 loops have the same bits); `None` below the horizon.
+    #[inline]
+    pub(crate) fn index_one(&self, wi: Vec3, wo: Vec3) -> Option<[f64; 4]> {
+        let (mut t, mut ok) = ([[0f64; 4]], [false]);
+        self.indices_impl(&[(wi, wo)], &mut t, &mut ok);
+        ok[0].then_some(t[0])
     }
 
     #[cfg(target_arch = "x86_64")]

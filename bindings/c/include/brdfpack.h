@@ -37,8 +37,8 @@
 // Something failed inside brdfpack (a bug; the message says what).
 #define BRDFPACK_ERROR_INTERNAL 7
 
-// `brdfpack_eval` flag: one evaluation per pair, the bits `brdfpack eval` prints (otherwise
-// tables take the batched lookup, equal to ~1e-12 relative and several times faster).
+// `brdfpack_eval` flag: one evaluation per pair (otherwise tables take the batched lookup,
+// several times faster). Both give the bits `brdfpack eval` prints.
 #define BRDFPACK_EVAL_EXACT 1
 
 // `brdfpack_eval` flag: pairs beyond a table's stored θmax give 0 instead of an error.

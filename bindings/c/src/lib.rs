@@ -35,8 +35,8 @@ pub const BRDFPACK_ERROR_NOT_A_TABLE: i32 = 6;
 /// Something failed inside brdfpack (a bug; the message says what).
 pub const BRDFPACK_ERROR_INTERNAL: i32 = 7;
 
-/// `brdfpack_eval` flag: one evaluation per pair, the bits `brdfpack eval` prints (otherwise
-/// tables take the batched lookup, equal to ~1e-12 relative and several times faster).
+/// `brdfpack_eval` flag: one evaluation per pair (otherwise tables take the batched lookup,
+/// several times faster). Both give the bits `brdfpack eval` prints.
 pub const BRDFPACK_EVAL_EXACT: u32 = 1;
 /// `brdfpack_eval` flag: pairs beyond a table's stored θmax give 0 instead of an error.
 pub const BRDFPACK_EVAL_OUTSIDE_DOMAIN_ZERO: u32 = 2;

@@ -190,9 +190,9 @@ impl Source {
 
     /// f_r in 1/sr (no cosine factor) at the pairs of `wi` and `wo`, arrays of shape (N, 3)
     /// in the local frame (z = normal), both pointing away from the surface; any finite
-    /// non-zero vectors (normalized). Returns float64 of shape (N, channels). `exact`: one
-    /// evaluation per pair, the bits `brdfpack eval` prints; otherwise tables take the
-    /// batched lookup (equal to ~1e-12 relative, several times faster). `out`: a C-contiguous
+    /// non-zero vectors (normalized). Returns float64 of shape (N, channels), the bits
+    /// `brdfpack eval` prints. `exact`: one evaluation per pair; otherwise tables take the
+    /// batched lookup (the same bits, several times faster). `out`: a C-contiguous
     /// float64 array of shape (N, channels) to write into and return (no allocation).
     #[pyo3(signature = (wi, wo, *, exact = false, outside_domain_zero = false, out = None))]
     fn eval<'py>(
