@@ -1251,11 +1251,15 @@ fn peak_memory_stays_within_twice_the_table_plus_64_mb() {
             bound / 1024
         );
         assert!(kib <= bound, "{args:?}: peak RSS {kib} KiB > {bound} KiB");
-        // The same command under an address-space cap of the bound plus 64 MiB for what is
+        // The same command under an address-space cap of the bound plus 128 MiB for what is
         // mapped but not resident (the binary, thread stacks, malloc arenas: two threads and
         // two arenas, so that the cap does not depend on the machine's cores). Measured
         // (release): 87 MiB of address space for `inspect`, `eval` and `check`, 183 MiB for
-        // `convert`; `check` needed 486 MiB while it held its `cells` set.
+        // `convert`; `check` needed 486 MiB while it held its `cells` set. The cap was bound
+        // + 64 MiB (232 MiB): `convert` failed under it in 2 of ~10 full-suite runs on the
+        // loaded 2-core machine (address space, unlike RSS, depends on timing: which thread's
+        // arena serves an allocation, glibc's adaptive mmap threshold), never alone. The RSS
+        // bound above is the figure and stays as it is.
         let mut capped = Command::new("sh");
         capped
             .current_dir(d)
@@ -1264,7 +1268,7 @@ fn peak_memory_stays_within_twice_the_table_plus_64_mb() {
             .arg("-c")
             .arg(format!(
                 "ulimit -v {} && exec \"$0\" \"$@\"",
-                bound + 64 * 1024
+                bound + 128 * 1024
             ))
             .arg(&*BIN)
             .args(args);
