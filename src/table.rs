@@ -506,6 +506,13 @@ impl Table {
         self.eval_batch_with(pairs, interp, out, true)
     }
 
+    /// [`Table::eval_batch`] on the calling thread: for a caller that already works in
+    /// parallel chunks (checking and normalizing its rows, then looking them up, with no array
+    /// of pairs between the two). The same bits: every pair is looked up on its own.
+    pub fn eval_batch_serial(&self, pairs: &[(Vec3, Vec3)], interp: Interp, out: &mut [f64]) {
+        self.eval_batch_impl(pairs, interp, out, true, false)
+    }
+
     /// [`Table::eval_batch`], with the AVX2 loops allowed (`simd`, when the CPU has them) or
     /// not (the portable loops, which tests compare against).
     pub(crate) fn eval_batch_with(
@@ -514,6 +521,17 @@ impl Table {
         interp: Interp,
         out: &mut [f64],
         simd: bool,
+    ) {
+        self.eval_batch_impl(pairs, interp, out, simd, true)
+    }
+
+    fn eval_batch_impl(
+        &self,
+        pairs: &[(Vec3, Vec3)],
+        interp: Interp,
+        out: &mut [f64],
+        simd: bool,
+        parallel: bool,
     ) {
         use crate::table::lookup::HalfdiffIndexer;
         use rayon::prelude::*;
@@ -540,19 +558,26 @@ impl Table {
             Some(_) => self.valid_bits(),
             None => &ValidBits(Vec::new()),
         };
-        out.par_chunks_mut(CHUNK * c)
-            .zip(pairs.par_chunks(CHUNK))
-            .for_each(|(out, pairs)| match &indexer {
-                None => {
-                    for (o, &(wi, wo)) in out.chunks_exact_mut(c).zip(pairs) {
-                        self.eval_into(wi, wo, interp, o);
-                    }
+        let chunk = |(out, pairs): (&mut [f64], &[(Vec3, Vec3)])| match &indexer {
+            None => {
+                for (o, &(wi, wo)) in out.chunks_exact_mut(c).zip(pairs) {
+                    self.eval_into(wi, wo, interp, o);
                 }
-                Some(ix) if layout.d == 3 => {
-                    self.eval_blocks3(ix, pairs, interp, &layout, bits, avx2, out)
-                }
-                Some(ix) => self.eval_blocks(ix, pairs, interp, &layout, bits, out),
-            });
+            }
+            Some(ix) if layout.d == 3 => {
+                self.eval_blocks3(ix, pairs, interp, &layout, bits, avx2, out)
+            }
+            Some(ix) => self.eval_blocks(ix, pairs, interp, &layout, bits, out),
+        };
+        if parallel {
+            out.par_chunks_mut(CHUNK * c)
+                .zip(pairs.par_chunks(CHUNK))
+                .for_each(chunk);
+        } else {
+            out.chunks_mut(CHUNK * c)
+                .zip(pairs.chunks(CHUNK))
+                .for_each(chunk);
+        }
     }
 
     /// Batched lookups on a 3-D grid, a block of pairs at a time: the angles
