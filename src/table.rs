@@ -65,6 +65,8 @@ pub struct Table {
     bits: BitsCache,
     /// Every cell's cos θi · cos θo, built on the first lookup of a cosine-weighted grid.
     cos: CosCache,
+    /// The vectorized angle maps of a half/difference grid, built on the first lookup.
+    angles: AnglesCache,
 }
 
 impl Table {
@@ -106,6 +108,7 @@ impl Table {
             exact: None,
             bits: BitsCache::default(),
             cos: CosCache::default(),
+            angles: AnglesCache::default(),
         })
     }
 
@@ -175,6 +178,7 @@ impl Table {
             exact: None,
             bits: BitsCache::default(),
             cos: CosCache::default(),
+            angles: AnglesCache::default(),
         }
     }
 
@@ -197,6 +201,7 @@ impl Table {
             exact: None,
             bits: BitsCache::default(),
             cos: CosCache::default(),
+            angles: AnglesCache::default(),
         }
     }
 
@@ -209,6 +214,7 @@ impl Table {
         if self.grid != *grid {
             self.grid = grid.clone();
             self.cos = CosCache::default();
+            self.angles = AnglesCache::default();
         }
         if self.channels != *channels {
             self.channels = channels.clone();
@@ -312,7 +318,11 @@ impl Table {
         // Where the batched lookups take the vectorized angles, one pair takes them too:
         // `eval_into`, `eval_batch` and the stencils then agree bit for bit, so `brdfpack
         // eval` prints what the bindings' batched arrays hold.
-        if let Some(ix) = crate::table::lookup::HalfdiffIndexer::new(&self.grid) {
+        if let Some(ix) = self
+            .angles
+            .0
+            .get_or_init(|| crate::table::lookup::HalfdiffIndexer::new(&self.grid))
+        {
             return ix.index_one(wi, wo);
         }
         let coords = self.grid.coords_of(wi, wo)?;
@@ -1036,6 +1046,18 @@ struct CosCache(std::sync::OnceLock<Vec<f32>>);
 
 impl PartialEq for CosCache {
     fn eq(&self, _: &CosCache) -> bool {
+        true
+    }
+}
+
+/// The angle maps of [`crate::table::lookup::HalfdiffIndexer`] for the per-pair lookup, built
+/// once per grid (they were rebuilt for every pair); like [`BitsCache`], a cache that is not
+/// part of the table's value.
+#[derive(Clone, Debug, Default)]
+struct AnglesCache(std::sync::OnceLock<Option<crate::table::lookup::HalfdiffIndexer>>);
+
+impl PartialEq for AnglesCache {
+    fn eq(&self, _: &AnglesCache) -> bool {
         true
     }
 }
