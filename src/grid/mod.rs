@@ -255,6 +255,51 @@ impl InterpWeight {
     }
 }
 
+/// The space the neighbours' values are combined in.
+///
+/// Linear: the weighted mean of the (possibly cosine-weighted) values. Log: the weighted mean
+/// of asinh(v/s), mapped back by s·sinh — a geometric mean for values well above the scale s
+/// and the linear mean well below it. A specular lobe is close to exp(−c·θh²) (Beckmann,
+/// Ward) or a power of a quadratic (GGX), so its logarithm is smooth where the values
+/// themselves fall by decades between two samples: linear interpolation of a narrow peak's
+/// flank overestimates it by the ratio of neighbouring samples, log interpolation follows it.
+/// The scale keeps values near zero (and of either sign) well defined; `pack` derives it
+/// from the metrics' own floor (1e-3 × the mean value, spec/metrics.md). Nearest lookups
+/// return the sample itself in either space.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InterpSpace {
+    #[default]
+    Linear,
+    Log {
+        /// s > 0, finite: below it the mean is close to linear.
+        scale: f64,
+    },
+}
+
+impl InterpSpace {
+    pub fn is_linear(&self) -> bool {
+        *self == InterpSpace::Linear
+    }
+    /// The name in grid specs (`space=log:0.0012`).
+    pub fn name(self) -> String {
+        match self {
+            InterpSpace::Linear => "linear".to_string(),
+            InterpSpace::Log { scale } => format!("log:{scale:e}"),
+        }
+    }
+    /// A log space of scale `scale`, checked.
+    pub fn log(scale: f64) -> Result<InterpSpace> {
+        if scale.is_finite() && scale > 0.0 && scale.recip().is_finite() {
+            Ok(InterpSpace::Log { scale })
+        } else {
+            Err(Error::input(format!(
+                "interpolation space log: scale {scale} is not a finite positive number"
+            )))
+        }
+    }
+}
+
 /// A parameterization of direction pairs with a resolution, warp and placement per axis.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Grid {
@@ -267,6 +312,8 @@ pub struct Grid {
     theta_max_deg: Option<f64>,
     /// What is interpolated between samples.
     weight: InterpWeight,
+    /// The space it is interpolated in.
+    space: InterpSpace,
 }
 
 /// Serialized form of a grid (what headers store): validated on the way in.
@@ -279,6 +326,9 @@ pub struct GridDesc {
     /// Absent for plain interpolation: headers of such grids are unchanged, byte for byte.
     #[serde(default, skip_serializing_if = "InterpWeight::is_none")]
     pub interp_weight: InterpWeight,
+    /// Absent for linear interpolation (headers of such grids are unchanged).
+    #[serde(default, skip_serializing_if = "InterpSpace::is_linear")]
+    pub interp_space: InterpSpace,
 }
 
 /// Serialized form of an axis.
@@ -370,6 +420,7 @@ impl Grid {
             theta_max,
             theta_max_deg,
             weight: InterpWeight::None,
+            space: InterpSpace::Linear,
         })
     }
 
@@ -397,7 +448,13 @@ impl Grid {
             )));
         }
         let axes: Vec<_> = d.axes.iter().map(|a| (a.n, a.warp, a.placement)).collect();
-        Ok(Grid::new(d.kind, &axes, d.theta_max_deg)?.with_weight(d.interp_weight))
+        let space = match d.interp_space {
+            InterpSpace::Linear => InterpSpace::Linear,
+            InterpSpace::Log { scale } => InterpSpace::log(scale)?,
+        };
+        Ok(Grid::new(d.kind, &axes, d.theta_max_deg)?
+            .with_weight(d.interp_weight)
+            .with_space(space))
     }
 
     /// The same samples with `weight` interpolated between them.
@@ -409,6 +466,17 @@ impl Grid {
     /// What is interpolated between samples.
     pub fn weight(&self) -> InterpWeight {
         self.weight
+    }
+
+    /// The same samples interpolated in `space` (a checked [`InterpSpace`]).
+    pub fn with_space(mut self, space: InterpSpace) -> Grid {
+        self.space = space;
+        self
+    }
+
+    /// The space values are interpolated in.
+    pub fn space(&self) -> InterpSpace {
+        self.space
     }
 
     pub fn desc(&self) -> GridDesc {
@@ -426,6 +494,7 @@ impl Grid {
                 .collect(),
             theta_max_deg: self.theta_max_deg,
             interp_weight: self.weight,
+            interp_space: self.space,
         }
     }
 
@@ -477,6 +546,9 @@ impl Grid {
         }
         if !self.weight.is_none() {
             s.push_str(&format!("; weight {}", self.weight.name()));
+        }
+        if !self.space.is_linear() {
+            s.push_str(&format!("; space {}", self.space.name()));
         }
         s
     }

@@ -3,12 +3,13 @@
 //! ```text
 //! merl
 //! KIND:DIMS[,warp=W[/W...]][,at=center|edge[/...]][,theta-max=DEG][,weight=none|cosine]
+//!       [,space=linear|log:S]
 //! KIND  = spherical4 | spherical3 | halfdiff3 | halfdiff4
 //! DIMS  = N | NxNx...            (one N applies to every axis)
 //! W     = linear | sqrt | grazing (one value applies to every axis)
 //! ```
 
-use super::{Grid, GridKind, InterpWeight, Placement, Warp};
+use super::{Grid, GridKind, InterpSpace, InterpWeight, Placement, Warp};
 use crate::{Error, Result};
 
 /// Parses a grid spec such as `merl` or `halfdiff4:64,warp=sqrt/linear/linear/linear`.
@@ -71,6 +72,7 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
     let mut placements = vec![Placement::Center; d];
     let mut theta_max = None;
     let mut weight = InterpWeight::None;
+    let mut space = InterpSpace::Linear;
     for opt in parts {
         let (k, v) = opt.split_once('=').ok_or_else(|| {
             Error::input(format!("grid {spec:?}: option {opt:?} is not key=value"))
@@ -119,15 +121,36 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
                     }
                 }
             }
+            "space" => {
+                space = match v.split_once(':') {
+                    None if v == "linear" => InterpSpace::Linear,
+                    Some(("log", s)) => s
+                        .parse::<f64>()
+                        .ok()
+                        .and_then(|s| InterpSpace::log(s).ok())
+                        .ok_or_else(|| {
+                            Error::input(format!(
+                                "grid {spec:?}: space log scale {s:?} is not a finite positive number"
+                            ))
+                        })?,
+                    _ => {
+                        return Err(Error::input(format!(
+                            "grid {spec:?}: space {v:?} is not linear or log:SCALE (e.g. log:0.001)"
+                        )));
+                    }
+                }
+            }
             _ => {
                 return Err(Error::input(format!(
-                    "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max, weight)"
+                    "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max, weight, space)"
                 )));
             }
         }
     }
     let axes: Vec<_> = (0..d).map(|k| (dims[k], warps[k], placements[k])).collect();
-    Ok(Grid::new(kind, &axes, theta_max)?.with_weight(weight))
+    Ok(Grid::new(kind, &axes, theta_max)?
+        .with_weight(weight)
+        .with_space(space))
 }
 
 #[cfg(test)]
@@ -168,6 +191,28 @@ mod tests {
         assert_eq!(g.shape(), vec![32; 4]);
         let g = parse_grid_spec("spherical4:8x16x8x16,theta-max=80").unwrap();
         assert!((g.theta_max().unwrap() - 80f64.to_radians()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_log_space_parses_prints_and_survives_the_header() {
+        let g = parse_grid_spec("halfdiff3:8x8x16,space=log:0.0025").unwrap();
+        assert_eq!(g.space(), InterpSpace::Log { scale: 0.0025 });
+        assert!(g.describe().ends_with("; space log:2.5e-3"), "{}", g.describe());
+        let json = serde_json::to_string(&g.desc()).unwrap();
+        assert!(json.contains(r#""interp_space":{"log":{"scale":0.0025}}"#), "{json}");
+        let back: super::super::GridDesc = serde_json::from_str(&json).unwrap();
+        assert_eq!(Grid::from_desc(&back).unwrap(), g);
+        // A linear grid's header has no field (files written before the space are unchanged).
+        let plain = serde_json::to_string(&parse_grid_spec("halfdiff3:8").unwrap().desc()).unwrap();
+        assert!(!plain.contains("interp_space"), "{plain}");
+        for bad in ["log", "log:0", "log:-1", "log:inf", "log:nan", "cubic", "log:1e-400"] {
+            let e = parse_grid_spec(&format!("halfdiff3:8,space={bad}")).unwrap_err();
+            assert!(e.to_string().contains("space"), "{bad}: {e}");
+        }
+        // A header cannot smuggle in a scale the parser refuses.
+        let mut d = g.desc();
+        d.interp_space = InterpSpace::Log { scale: -1.0 };
+        assert!(Grid::from_desc(&d).is_err());
     }
 
     #[test]

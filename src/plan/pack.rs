@@ -14,7 +14,7 @@ use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
 use super::grids::default_grid_spec;
 use super::rate::{Effort, Encoded, Progress, RateOutcome, encode_within};
 use crate::brdf::Brdf;
-use crate::grid::{Grid, InterpWeight, Quantity, Warp, parse_grid_spec};
+use crate::grid::{Grid, InterpSpace, InterpWeight, Quantity, Warp, parse_grid_spec};
 use crate::table::Table;
 use crate::tabulate::{TabulateOptions, tabulate};
 use crate::{Error, Result};
@@ -182,6 +182,22 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 spec = table.grid().describe();
             } else {
                 table.set_interp_weight(plain);
+            }
+            // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
+            // flanks fall by decades between samples, which linear interpolation
+            // overestimates and a geometric mean follows.
+            if let Some(log) = log_space_of(&table) {
+                let linear = table.grid().space();
+                table.set_interp_space(log);
+                let est_l = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
+                let floor_l = est_l.measure(table.data());
+                if floor_share(&settings.budget, &floor_l) < floor_share(&settings.budget, &floor)
+                {
+                    (est, floor) = (est_l, floor_l);
+                    spec = table.grid().describe();
+                } else {
+                    table.set_interp_space(linear);
+                }
             }
         }
         timings.push((
@@ -352,6 +368,39 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
 /// try would cost it a second set of stencils, ~0.2 s and ~10 MB); the sources the weight is
 /// for (RGL files: 70% to 10× the budget on the default grid) are far above it.
 const WEIGHT_TRY_SHARE: f64 = 0.5;
+
+/// The log interpolation space to measure on `table` (None when its space is already set, or
+/// the table holds no nonzero value): scale 1e-3 × the mean |value| over the directions (each
+/// valid cell weighted by its solid-angle measure, as the uniform sample sets weigh it), the
+/// ε of the metrics' relative errors (spec/metrics.md). Values the relative metrics weigh are
+/// then combined as logs and values below their floor linearly. On a cosine-weighted grid the
+/// value is f·cos θi·cos θo, the quantity interpolated.
+fn log_space_of(table: &Table) -> Option<InterpSpace> {
+    if !table.grid().space().is_linear() {
+        return None;
+    }
+    let grid = table.grid();
+    let c = table.channels().len();
+    let cos = match grid.weight() {
+        InterpWeight::Cosine => Some(grid.cos_products()),
+        InterpWeight::None => None,
+    };
+    let (mut sum, mut measure) = (0.0f64, 0.0f64);
+    let mut idx = [0usize; 4];
+    for (cell, (&ok, vals)) in table.valid().iter().zip(table.data().chunks_exact(c)).enumerate() {
+        if ok {
+            grid.unflatten(cell, &mut idx[..grid.axes().len()]);
+            let w = grid.cell_measure(&idx[..grid.axes().len()]);
+            let m = cos.as_ref().map_or(1.0, |p| p[cell]);
+            sum += w * vals.iter().map(|&v| (m * v as f64).abs()).sum::<f64>() / c as f64;
+            measure += w;
+        }
+    }
+    if measure <= 0.0 {
+        return None;
+    }
+    InterpSpace::log(1e-3 * sum / measure).ok()
+}
 
 /// A grid whose own error uses more than this share of a bound gets one finer grid tried.
 const TIGHT_FLOOR: f64 = 0.6;
