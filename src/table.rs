@@ -1475,7 +1475,10 @@ impl Stencil {
         let post = self.post[p];
         o.fill(0.0);
         if let After::Hold(_) = self.after[p] {
-            let (flat, m) = (self.cells[range.start] as usize, self.pre[range.start] as f64);
+            let (flat, m) = (
+                self.cells[range.start] as usize,
+                self.pre[range.start] as f64,
+            );
             for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                 *o = post * (m * v as f64);
             }
@@ -2002,7 +2005,8 @@ mod tests {
     /// returns its samples where a query sits on one.
     #[test]
     fn log_space_follows_a_narrow_peak() {
-        let m = crate::model::Model::parse("lambert:albedo=0.05+ggx:alpha=0.02,fresnel=au").unwrap();
+        let m =
+            crate::model::Model::parse("lambert:albedo=0.05+ggx:alpha=0.02,fresnel=au").unwrap();
         let linear = tabulate(
             &m,
             &parse_grid_spec("halfdiff3:48x48x64,warp=sqrt/linear/linear").unwrap(),
@@ -2018,8 +2022,8 @@ mod tests {
             for &(wi, wo) in &pairs {
                 t.eval_into(wi, wo, Interp::Linear, &mut g);
                 m.eval(wi, wo, &mut f);
-                for k in 0..3 {
-                    let d = (1.0 + g[k] * wi.z).ln() - (1.0 + f[k] * wi.z).ln();
+                for (gk, fk) in g.iter().zip(&f) {
+                    let d = (1.0 + gk * wi.z).ln() - (1.0 + fk * wi.z).ln();
                     sum += d * d;
                 }
             }
@@ -2037,9 +2041,9 @@ mod tests {
         let flat = (idx[0] * 48 + idx[1]) * 64 + idx[2];
         let mut g = [0.0; 3];
         log.eval_into(wi, wo, Interp::Linear, &mut g);
-        for k in 0..3 {
-            let v = log.data()[flat * 3 + k] as f64;
-            assert!((g[k] - v).abs() <= 1e-9 * v.abs(), "{} vs {v}", g[k]);
+        for (gk, &v) in g.iter().zip(&log.data()[flat * 3..flat * 3 + 3]) {
+            let v = v as f64;
+            assert!((gk - v).abs() <= 1e-9 * v.abs(), "{gk} vs {v}");
         }
     }
 

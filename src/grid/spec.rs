@@ -121,25 +121,23 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
                     }
                 }
             }
-            "space" => {
-                space = match v.split_once(':') {
-                    None if v == "linear" => InterpSpace::Linear,
-                    Some(("log", s)) => s
-                        .parse::<f64>()
-                        .ok()
-                        .and_then(|s| InterpSpace::log(s).ok())
-                        .ok_or_else(|| {
-                            Error::input(format!(
-                                "grid {spec:?}: space log scale {s:?} is not a finite positive number"
-                            ))
-                        })?,
-                    _ => {
-                        return Err(Error::input(format!(
-                            "grid {spec:?}: space {v:?} is not linear or log:SCALE (e.g. log:0.001)"
-                        )));
-                    }
+            "space" => space = match v.split_once(':') {
+                None if v == "linear" => InterpSpace::Linear,
+                Some(("log", s)) => s
+                    .parse::<f64>()
+                    .ok()
+                    .and_then(|s| InterpSpace::log(s).ok())
+                    .ok_or_else(|| {
+                        Error::input(format!(
+                            "grid {spec:?}: space log scale {s:?} is not a finite positive number"
+                        ))
+                    })?,
+                _ => {
+                    return Err(Error::input(format!(
+                        "grid {spec:?}: space {v:?} is not linear or log:SCALE (e.g. log:0.001)"
+                    )));
                 }
-            }
+            },
             _ => {
                 return Err(Error::input(format!(
                     "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max, weight, space)"
@@ -197,15 +195,30 @@ mod tests {
     fn the_log_space_parses_prints_and_survives_the_header() {
         let g = parse_grid_spec("halfdiff3:8x8x16,space=log:0.0025").unwrap();
         assert_eq!(g.space(), InterpSpace::Log { scale: 0.0025 });
-        assert!(g.describe().ends_with("; space log:2.5e-3"), "{}", g.describe());
+        assert!(
+            g.describe().ends_with("; space log:2.5e-3"),
+            "{}",
+            g.describe()
+        );
         let json = serde_json::to_string(&g.desc()).unwrap();
-        assert!(json.contains(r#""interp_space":{"log":{"scale":0.0025}}"#), "{json}");
+        assert!(
+            json.contains(r#""interp_space":{"log":{"scale":0.0025}}"#),
+            "{json}"
+        );
         let back: super::super::GridDesc = serde_json::from_str(&json).unwrap();
         assert_eq!(Grid::from_desc(&back).unwrap(), g);
         // A linear grid's header has no field (files written before the space are unchanged).
         let plain = serde_json::to_string(&parse_grid_spec("halfdiff3:8").unwrap().desc()).unwrap();
         assert!(!plain.contains("interp_space"), "{plain}");
-        for bad in ["log", "log:0", "log:-1", "log:inf", "log:nan", "cubic", "log:1e-400"] {
+        for bad in [
+            "log",
+            "log:0",
+            "log:-1",
+            "log:inf",
+            "log:nan",
+            "cubic",
+            "log:1e-400",
+        ] {
             let e = parse_grid_spec(&format!("halfdiff3:8,space={bad}")).unwrap_err();
             assert!(e.to_string().contains("space"), "{bad}: {e}");
         }

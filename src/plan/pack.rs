@@ -191,8 +191,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 table.set_interp_space(log);
                 let est_l = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
                 let floor_l = est_l.measure(table.data());
-                if floor_share(&settings.budget, &floor_l) < floor_share(&settings.budget, &floor)
-                {
+                if floor_share(&settings.budget, &floor_l) < floor_share(&settings.budget, &floor) {
                     (est, floor) = (est_l, floor_l);
                     spec = table.grid().describe();
                 } else {
@@ -387,7 +386,12 @@ fn log_space_of(table: &Table) -> Option<InterpSpace> {
     };
     let (mut sum, mut measure) = (0.0f64, 0.0f64);
     let mut idx = [0usize; 4];
-    for (cell, (&ok, vals)) in table.valid().iter().zip(table.data().chunks_exact(c)).enumerate() {
+    for (cell, (&ok, vals)) in table
+        .valid()
+        .iter()
+        .zip(table.data().chunks_exact(c))
+        .enumerate()
+    {
         if ok {
             grid.unflatten(cell, &mut idx[..grid.axes().len()]);
             let w = grid.cell_measure(&idx[..grid.axes().len()]);
