@@ -6,9 +6,9 @@
 //! `,residual=0.01` last), so that the canonical text of every request without them is what it
 //! was before they existed.
 
-use super::predict::{Predictor, Space};
-use super::transform::Weight;
 use super::{CodecRequest, CurveRequest, DctCoding};
+use crate::codec::predict::{Predictor, Space};
+use crate::codec::transform::Weight;
 use std::fmt;
 
 impl CodecRequest {

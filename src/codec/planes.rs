@@ -1,0 +1,186 @@
+//! What the encoders and the planner read from a table: the transformed component planes
+//! (invalid cells filled), their DCT coefficients, the curve and colour transform derived from
+//! the table's values, and the best predictor.
+
+use super::*;
+
+/// The forward DCT coefficients of every transformed component of `table` (invalid cells
+/// filled first). Exposed so the search can quantize one transform at many steps.
+pub fn dct_coefficients(table: &Table, transform: &Transform) -> Result<Vec<Vec<f64>>> {
+    let dims = table.grid().shape();
+    let planes = filled_planes(table, transform);
+    Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
+}
+
+/// The transformed component planes with the invalid cells filled ([`domain::fill_invalid`]):
+/// what the DCT and Tucker stages decompose.
+pub fn filled_planes(table: &Table, transform: &Transform) -> Vec<Vec<f64>> {
+    let dims = table.grid().shape();
+    let mut planes = component_planes(table, transform);
+    domain::fill_invalid(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &fill_order(table.grid().kind()),
+    );
+    planes
+}
+
+/// The DCT coefficients for a context-coded spec: with `Domain::FillRefined` the invalid
+/// cells are refilled `iterations` times with the decoded table of the quantized coefficients
+/// (at these `steps` and dead zone), which makes the filled table cheaper to code; otherwise
+/// as [`dct_coefficients`].
+pub fn dct_coefficients_for(
+    table: &Table,
+    transform: &Transform,
+    domain: Domain,
+    steps: &[f64],
+    coding: &coefcode::ContextCoding,
+) -> Result<Vec<Vec<f64>>> {
+    let Domain::FillRefined { iterations } = domain else {
+        return dct_coefficients(table, transform);
+    };
+    let dims = table.grid().shape();
+    let mut planes = component_planes(table, transform);
+    let order = fill_order(table.grid().kind());
+    domain::fill_refined(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &order,
+        iterations,
+        |k, p| {
+            let q = coefcode::quantize_deadzone(
+                &dct::forward(p, &dims),
+                &dims,
+                steps[k],
+                coding.deadzone,
+            );
+            dct::inverse(&q, &dims, steps[k])
+        },
+    );
+    Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
+}
+
+/// The transformed table as one plane per component (cell-major data → planes).
+pub(super) fn component_planes(table: &Table, transform: &Transform) -> Vec<Vec<f64>> {
+    let c = table.channels().len();
+    let cells = table.grid().cells();
+    let mut planes = vec![vec![0.0; cells]; c];
+    transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
+        for (p, &v) in planes.iter_mut().zip(z) {
+            p[f] = v;
+        }
+    });
+    planes
+}
+
+pub(super) fn valid_values<'a>(
+    z: &'a [f64],
+    valid: &'a [bool],
+    c: usize,
+) -> impl Iterator<Item = f64> + 'a {
+    z.chunks_exact(c)
+        .zip(valid)
+        .filter(|(_, ok)| **ok)
+        .flat_map(|(v, _)| v.iter().copied())
+}
+
+/// The curve for a table: ε_c = eps_rel × the channel's mean over valid cells (falling back
+/// to the pooled mean, then 1e-6, so that ε is never 0 for a black channel). With a weight,
+/// the mean is that of w·x, the quantity the curve is applied to: ε keeps its meaning (the
+/// level below which the coded quantity needs no relative precision).
+pub fn curve_for(table: &Table, req: CurveRequest, weight: Option<Weight>) -> Curve {
+    match req {
+        CurveRequest::Linear => Curve::Linear,
+        CurveRequest::Log { eps_rel } | CurveRequest::SignedLog { eps_rel } => {
+            let signed = matches!(req, CurveRequest::SignedLog { .. });
+            let c = table.channels().len();
+            let w = weight.map(|w| w.cells(table.grid(), table.valid()));
+            let mut sum = vec![0.0f64; c];
+            let mut n = 0usize;
+            for (cell, &ok) in table.valid().iter().enumerate() {
+                if ok {
+                    n += 1;
+                    let wf = w.as_ref().map_or(1.0, |w| w[cell]);
+                    for (k, s) in sum.iter_mut().enumerate() {
+                        let x = table.data()[cell * c + k];
+                        *s += wf * if signed { x.abs() } else { x.max(0.0) } as f64;
+                    }
+                }
+            }
+            let pooled = sum.iter().sum::<f64>() / (n.max(1) * c) as f64;
+            let eps = sum
+                .iter()
+                .map(|s| {
+                    let m = s / n.max(1) as f64;
+                    let e = eps_rel * if m > 0.0 { m } else { pooled };
+                    if e > 0.0 && e.is_finite() { e } else { 1e-6 }
+                })
+                .collect();
+            if signed {
+                Curve::SignedLog { eps }
+            } else {
+                Curve::Log { eps }
+            }
+        }
+    }
+}
+
+/// Weight and curve plus (for several channels) the KLT of the weighted, curved channels.
+pub fn transform_for(
+    table: &Table,
+    req: CurveRequest,
+    colour: bool,
+    weight: Option<Weight>,
+) -> Transform {
+    transform_with_curve(table, curve_for(table, req, weight), colour, weight)
+}
+
+/// Weight and a given curve plus (for several channels, when `colour`) the KLT of the
+/// weighted, curved channels: the planner derives ε itself ([`crate::plan::rate`]).
+pub fn transform_with_curve(
+    table: &Table,
+    curve: Curve,
+    colour: bool,
+    weight: Option<Weight>,
+) -> Transform {
+    let c = table.channels().len();
+    let colour = if colour && c > 1 {
+        let t = Transform {
+            curve: curve.clone(),
+            colour: None,
+            weight,
+        };
+        let valid = table.valid();
+        let mut samples = Vec::with_capacity(table.valid_count() * c);
+        t.for_each_cell(table.data(), c, table.grid(), valid, |f, z| {
+            if valid[f] {
+                samples.extend_from_slice(z);
+            }
+        });
+        Some(Colour::klt(&samples, c))
+    } else {
+        None
+    };
+    Transform {
+        curve,
+        colour,
+        weight,
+    }
+}
+
+/// The predictor with the smallest estimated coded size (order-0 entropy of the residual byte
+/// planes) among [`predict::candidates`].
+pub fn best_predictor(data: &[f32], shape: &Shape, d: usize) -> Result<Predictor> {
+    let mut best: Option<(f64, Predictor)> = None;
+    for p in predict::candidates(d, shape.channels) {
+        let r = p.residuals_f32(data, shape)?;
+        let bits = predict::plane_entropy_bits(&r);
+        if best.as_ref().is_none_or(|(b, _)| bits < *b) {
+            best = Some((bits, p));
+        }
+    }
+    best.map(|(_, p)| p)
+        .ok_or_else(|| Error::Failure("no predictor candidates".into()))
+}
