@@ -187,7 +187,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             // flanks fall by decades between samples, which linear interpolation
             // overestimates and a geometric mean follows.
             let mut kept = table.grid().space();
-            for log in log_spaces_of(&table) {
+            for log in log_spaces_of(&table, &est) {
                 table.set_interp_space(log);
                 let est_l = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
                 let floor_l = est_l.measure(table.data());
@@ -369,54 +369,37 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
 const WEIGHT_TRY_SHARE: f64 = 0.5;
 
 /// The log interpolation spaces to measure on `table` (none when its space is already set,
-/// or the table holds no nonzero value). Scales from the ε of the metrics' relative errors
-/// (spec/metrics.md), 1e-3 × the mean |value| over the directions (each valid cell weighted
-/// by its solid-angle measure, as the uniform sample sets weigh it; on a cosine-weighted grid
-/// the value is f·cos θi·cos θo, the quantity interpolated): S = ε combines the values the
-/// relative metrics weigh as logs and those below their floor linearly; S = ε/1000 also
-/// follows a lobe's tail down through the floor, where a pure lobe's relative error is
-/// measured (Ward 0.1 × 0.3 on halfdiff4:32: p99_rel_core 1.6 at S = ε, 0.30 at ε/1000).
-fn log_spaces_of(table: &Table) -> Vec<InterpSpace> {
-    let Some(InterpSpace::Log { scale }) = log_space_of(table) else {
+/// or the source is 0 everywhere). Scales from the ε of the metrics' relative errors
+/// (spec/metrics.md), 1e-3 × the mean |value| over the estimator's uniform pairs (its
+/// reference values; on a cosine-weighted grid the value is f·cos θi·cos θo, the quantity
+/// interpolated): S = ε combines the values the relative metrics weigh as logs and those below
+/// their floor linearly; S = ε/1000 also follows a lobe's tail down through the floor, where
+/// a pure lobe's relative error is measured (Ward 0.1 × 0.3 on halfdiff4:32: p99_rel_core 1.6
+/// at S = ε, 0.30 at ε/1000). No grid-sized array is made: the reference values are at hand.
+fn log_spaces_of(table: &Table, est: &ErrorEstimator) -> Vec<InterpSpace> {
+    if !table.grid().space().is_linear() {
         return Vec::new();
-    };
-    [scale, scale * 1e-3]
+    }
+    let cosine = table.grid().weight() == InterpWeight::Cosine;
+    let (pairs, values) = est.reference();
+    let c = table.channels().len();
+    let sum: f64 = pairs
+        .iter()
+        .zip(values.chunks_exact(c))
+        .map(|((wi, wo), v)| {
+            let m = if cosine {
+                wi.z.max(0.0) * wo.z.max(0.0)
+            } else {
+                1.0
+            };
+            v.iter().map(|f| (m * f).abs()).sum::<f64>()
+        })
+        .sum();
+    let eps = 1e-3 * sum / (pairs.len() * c).max(1) as f64;
+    [eps, eps * 1e-3]
         .into_iter()
         .filter_map(|s| InterpSpace::log(s).ok())
         .collect()
-}
-
-/// The log space of scale ε (see [`log_spaces_of`]).
-fn log_space_of(table: &Table) -> Option<InterpSpace> {
-    if !table.grid().space().is_linear() {
-        return None;
-    }
-    let grid = table.grid();
-    let c = table.channels().len();
-    let cos = match grid.weight() {
-        InterpWeight::Cosine => Some(grid.cos_products()),
-        InterpWeight::None => None,
-    };
-    let (mut sum, mut measure) = (0.0f64, 0.0f64);
-    let mut idx = [0usize; 4];
-    for (cell, (&ok, vals)) in table
-        .valid()
-        .iter()
-        .zip(table.data().chunks_exact(c))
-        .enumerate()
-    {
-        if ok {
-            grid.unflatten(cell, &mut idx[..grid.axes().len()]);
-            let w = grid.cell_measure(&idx[..grid.axes().len()]);
-            let m = cos.as_ref().map_or(1.0, |p| p[cell]);
-            sum += w * vals.iter().map(|&v| (m * v as f64).abs()).sum::<f64>() / c as f64;
-            measure += w;
-        }
-    }
-    if measure <= 0.0 {
-        return None;
-    }
-    InterpSpace::log(1e-3 * sum / measure).ok()
 }
 
 /// A grid whose own error uses more than this share of a bound gets one finer grid tried.
