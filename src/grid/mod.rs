@@ -281,11 +281,12 @@ impl InterpSpace {
     pub fn is_linear(&self) -> bool {
         *self == InterpSpace::Linear
     }
-    /// The name in grid specs (`space=log:0.0012`).
+    /// The name in grid descriptions (`log:1.234e-3`: four digits for a reader; headers keep
+    /// the exact value).
     pub fn name(self) -> String {
         match self {
             InterpSpace::Linear => "linear".to_string(),
-            InterpSpace::Log { scale } => format!("log:{scale:e}"),
+            InterpSpace::Log { scale } => format!("log:{scale:.3e}"),
         }
     }
     /// A log space of scale `scale`, checked.
