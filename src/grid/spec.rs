@@ -196,7 +196,7 @@ mod tests {
         let g = parse_grid_spec("halfdiff3:8x8x16,space=log:0.0025").unwrap();
         assert_eq!(g.space(), InterpSpace::Log { scale: 0.0025 });
         assert!(
-            g.describe().ends_with("; space log:2.5e-3"),
+            g.describe().ends_with("; space log:2.500e-3"),
             "{}",
             g.describe()
         );
