@@ -53,7 +53,7 @@ const VNDF_FLOOR: f64 = 1e-5;
 const LUMINANCE_FLOOR: f64 = 1e-4;
 /// 1/6 of the colour columns lie beyond the horizon (`align_horizon`): room for each VNDF row
 /// to keep its own density past its horizon as far as the horizons of the neighbouring rows
-/// and slices (measured: 1/16 left GGX gold at log_rmse 0.020, 1/6 at 0.014, 1/4 no better).
+/// and slices (with 1/16 most rows had no room for that; 1/4 was no better than 1/6).
 const HORIZON_SHARE_INV: usize = 6;
 /// Least mass of a VNDF row relative to the mean row (rows are scaled up to it).
 const ROW_SHARE: f64 = 1.0;
@@ -320,10 +320,11 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
             for v in vndf.iter_mut() {
                 *v = v.max(VNDF_FLOOR * vmax);
             }
-            // The horizon on the colour grid: every VNDF row gets, beyond its horizon (the u_θ
-            // where reflect(wi, m) reaches wo.z = 0), a constant density chosen so that the
-            // row's conditional CDF is exactly 1 − β there, with the same β for all rows and
-            // β a whole number of colour columns. The colour column s_x = 1 − β then lies on
+            // The horizon on the colour grid: beyond its horizon (the u_θ where reflect(wi, m)
+            // reaches wo.z = 0) every VNDF row keeps its own density for a while, then gets a
+            // constant density chosen so that the row's conditional CDF is exactly 1 − β at
+            // the horizon, with the same β for all rows and slices and β a whole number of
+            // colour columns (`align_horizon`). The colour column s_x = 1 − β then lies on
             // the horizon (it holds f·cos θo = 0), so near the horizon Mitsuba interpolates
             // f·cos θo between 0 at the horizon and the next column inside, and eval / wo.z
             // stays near f instead of growing like 1/wo.z.
@@ -377,7 +378,7 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
                     span
                 },
             );
-            // Every row (azimuth of m) keeps at least a share κ of the mean row mass, so that
+            // Every row (azimuth of m) gets at least ROW_SHARE times the mean row mass, so that
             // the colour grid's rows resolve all azimuths, also where little of the VNDF lies
             // (behind a grazing wi, where the horizon moves fastest with the azimuth). A row
             // is scaled as a whole: its conditional CDF, and so the horizon column, is kept.
@@ -429,8 +430,8 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
                     let m = half(u);
                     let wo = m * (2.0 * wi.dot(m)) - wi;
                     // f at wo raised to WO_Z_MIN (f of a wo below the horizon is 0), times
-                    // cos θo clamped at 0: f·cos θo goes to 0 at the horizon, and the nodes
-                    // that map below it (only the warp's far edges) hold 0.
+                    // cos θo: f·cos θo goes to 0 at the horizon (the column 1 − β), and the
+                    // nodes beyond it (wo below the horizon) hold BEYOND_HORIZON.
                     let wo_f = if wo.z < WO_Z_MIN {
                         let r = (wo.x * wo.x + wo.y * wo.y).sqrt();
                         let s = (1.0 - WO_Z_MIN * WO_Z_MIN).sqrt();
