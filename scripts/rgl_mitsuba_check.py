@@ -9,6 +9,7 @@
    percentile).
 2. chi2: mitsuba.chi2.ChiSquareTest with the BSDF adapter (default significance 0.01) for
    θi in --chi2-theta (degrees).
+   --chi2-plugin JSON runs the same test on a Mitsuba plugin instead (e.g. roughconductor).
 3. --against-bsdf FILE: instead of a brdfpack source, compare with Mitsuba's evaluation of
    another .bsdf (the re-written RGL files): max and p99 of the fixture metric
    |f − f_ref| / (|f_ref| + 1e-3·mean|f_ref|).
@@ -26,7 +27,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-sys.path.insert(0, os.path.join(ROOT, "..", "shared", "peers", "mitsuba"))
+sys.path.insert(0, os.path.join(os.environ.get("BRDFPACK_SHARED", os.path.join(ROOT, "..", "shared")), "peers", "mitsuba"))
 import mitsuba_ref  # noqa: E402  (Mitsuba setup and the measured-plugin fold workaround)
 
 
@@ -85,14 +86,13 @@ def metrics(f, g, wi, wo):
     }
 
 
-def chi2(path, thetas):
-    mi = mitsuba_ref.mi
+def chi2(plugin, thetas):
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
     out = {}
     for t in thetas:
         th = np.radians(t)
         wi = [float(np.sin(th)), 0.0, float(np.cos(th))]
-        sample, pdf = BSDFAdapter("measured", {"type": "measured", "filename": path}, wi=wi)
+        sample, pdf = BSDFAdapter(plugin["type"], plugin, wi=wi)
         test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf,
                              sample_dim=3)
         ok = bool(test.run(quiet=True))
@@ -111,6 +111,9 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--chi2-theta", default="0,30,60,80",
                     help="θi in degrees for the chi2 test ('' to skip)")
+    ap.add_argument("--chi2-plugin", help="run the chi2 test on this Mitsuba BSDF (JSON dict, "
+                    "e.g. roughconductor) instead of the file, to see what the test does with "
+                    "Mitsuba's own material")
     ap.add_argument("--brdfpack", default=os.path.join(ROOT, "target", "release", "brdfpack"))
     a = ap.parse_args()
     mitsuba_ref.init(a.variant)
@@ -133,7 +136,11 @@ def main():
                                  "p99": float(np.percentile(err, 99)),
                                  "median": float(np.median(err))}
     if a.chi2_theta:
-        report["chi2"] = chi2(a.bsdf, [float(t) for t in a.chi2_theta.split(",")])
+        plugin = {"type": "measured", "filename": a.bsdf}
+        if a.chi2_plugin:
+            plugin = json.loads(a.chi2_plugin)
+            report["chi2_plugin"] = plugin
+        report["chi2"] = chi2(plugin, [float(t) for t in a.chi2_theta.split(",")])
     print(json.dumps(report, indent=1))
 
 

@@ -12,7 +12,17 @@
 //! 3. `vndf`: per incident slice, the visible-normal density D(m) max(0, wi·m)/σ(wi) as a
 //!    density over the half-vector unit square (× the Jacobian u_θ sin θm of that square),
 //!    mixed with the visible-normal density of a flat D (`tail_share`) so the tail of D keeps
-//!    colour nodes, and 0 where m reflects wi below the horizon (and next to it).
+//!    colour nodes. Then, per row (azimuth of m), the horizon is aligned (`align_horizon`):
+//!    the row keeps its own density past the u_θ where reflect(wi, m) reaches wo.z = 0 as far
+//!    as the horizons of the neighbouring rows and slices lie, and a constant beyond sets
+//!    the row's conditional CDF at its horizon to 1 − β, the same for every row and slice
+//!    (β = 1/6 of the colour columns). The colour column s_x = 1 − β is then the horizon: it
+//!    holds f·cos θo = 0 and the nodes inside it hold f·cos θo, so Mitsuba's eval / wo.z
+//!    stays near f next to the horizon instead of growing like 1/wo.z (issue #21: that was
+//!    most of the log error). Last, rows with less than the mean row mass are scaled up to it
+//!    (a whole row at a time, so its CDF is kept) so that the colour grid's rows resolve every
+//!    azimuth, also behind a grazing wi where the horizon moves fastest.
+//!    The θi slices run from 0 to 89.5° and are graded towards grazing incidence.
 //! 4. `rgb`, `luminance`: per slice, on a uniform n×n grid of the warped sample square: each
 //!    node is mapped through the VNDF warp (Mitsuba's own inversion, solved by bisection, so
 //!    the two agree to rounding) to a half vector m, wo = reflect(wi, m), and the node holds
@@ -31,7 +41,7 @@ use rayon::prelude::*;
 const LUMINANCE: [f64; 3] = [0.2126, 0.7152, 0.0722];
 /// Retro-reflection is read no closer to the horizon than this (f = 0 at θ = 90°).
 const RETRO_THETA_MAX: f64 = 89.0 * PI / 180.0;
-/// The slice at θi = 90° is built from wi at this elevation (wi on the horizon sees nothing).
+/// The last θi slice (wi on the horizon sees nothing; Mitsuba extrapolates it unchanged).
 const SLICE_THETA_MAX: f64 = 89.5 * PI / 180.0;
 /// Colour nodes whose reflected wo falls below this height are filled from wo raised to it,
 /// so that interpolation next to the horizon sees a continuation, not a jump to 0.
@@ -41,13 +51,25 @@ const WO_Z_MIN: f64 = 1e-3;
 const NDF_FLOOR: f64 = 1e-6;
 const VNDF_FLOOR: f64 = 1e-5;
 const LUMINANCE_FLOOR: f64 = 1e-4;
+/// 1/6 of the colour columns lie beyond the horizon (`align_horizon`): room for each VNDF row
+/// to keep its own density past its horizon as far as the horizons of the neighbouring rows
+/// and slices (with 1/16 most rows had no room for that; 1/4 was no better than 1/6).
+const HORIZON_SHARE_INV: usize = 6;
+/// Least mass of a VNDF row relative to the mean row (rows are scaled up to it).
+const ROW_SHARE: f64 = 1.0;
+/// Grading a of the θi slices (denser towards grazing incidence; 0 = uniform).
+const SLICE_GRADING: f64 = 0.7;
+/// The `rgb` value of colour nodes whose wo lies below the horizon (see its use).
+const BEYOND_HORIZON: f64 = 1e-30;
 /// Azimuth nodes of the σ quadrature for isotropic sources.
 const SIGMA_PHI_NODES: usize = 128;
 
 /// Resolutions of the written file.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RglWriteOptions {
-    /// Incident elevation slices, uniform in θi over [0°, 90°] (RGL measurements use 8).
+    /// Incident elevation slices over [0°, 89.5°], graded: θ(t) = 89.5°·(t + 0.7 t(1 − t)),
+    /// t = k/(N − 1), so the spacing at grazing incidence is 0.3 of the uniform one (RGL
+    /// measurements use 8; Mitsuba uses the last slice unchanged beyond it).
     pub theta_slices: usize,
     /// Incident azimuth slices of anisotropic sources, uniform over [−π, π] (both ends kept,
     /// so Mitsuba's φ reduction is 1: no folding).
@@ -70,7 +92,7 @@ pub struct RglWriteOptions {
 impl Default for RglWriteOptions {
     fn default() -> Self {
         RglWriteOptions {
-            theta_slices: 16,
+            theta_slices: 32,
             phi_slices: 17,
             ndf_res: 128,
             ndf_phi_res: 65,
@@ -98,7 +120,7 @@ impl RglWriteOptions {
         check("ndf-res", self.ndf_res, 8, 4096)?;
         check("ndf-phi-res", self.ndf_phi_res, 3, 4096)?;
         check("vndf-res", self.vndf_res, 8, 1024)?;
-        check("colour-res", self.colour_res, 2, 512)?;
+        check("colour-res", self.colour_res, 4, 512)?;
         check("max-iterations", self.max_iterations, 1, 1000)?;
         if !(0.0..1.0).contains(&self.tail_share) {
             return Err(Error::input(format!(
@@ -222,8 +244,16 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
 
     // Incident slices as float32 (the values Mitsuba interpolates between).
     let nt = opts.theta_slices;
+    // Denser towards grazing incidence, where the horizon moves fastest across the tables:
+    // θ(t) = θmax·(t + a·t(1 − t)), spacing (1 + a) times the uniform one at normal incidence
+    // and (1 − a) times at the last slice. The last slice is θmax itself (built there exactly;
+    // Mitsuba uses it unchanged beyond).
+    let a = SLICE_GRADING;
     let theta_i: Vec<f32> = (0..nt)
-        .map(|t| (t as f64 / (nt - 1) as f64 * FRAC_PI_2) as f32)
+        .map(|k| {
+            let t = k as f64 / (nt - 1) as f64;
+            (SLICE_THETA_MAX * (t + a * t * (1.0 - t))) as f32
+        })
         .collect();
     let phi_i: Vec<f32> = if isotropic {
         vec![0.0]
@@ -240,6 +270,8 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
 
     // 3.–4. Per slice: VNDF density, then the colour nodes through its warp.
     let (h, n) = (opts.vndf_res, opts.colour_res);
+    // Share of the colour grid beyond the horizon (align_horizon): a whole number of columns.
+    let beta = (n - 1).div_ceil(HORIZON_SHARE_INV).min((n - 1) / 2).max(1) as f64 / (n - 1) as f64;
     let built: Vec<Result<SliceTables>> = slices
         .par_iter()
         .map(|&(phi_s, theta_s)| {
@@ -262,13 +294,6 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
             // of a value that eval / wo.z would blow up.
             let node_u =
                 |x: usize, y: usize| [x as f64 / (h - 1) as f64, y as f64 / (h - 1) as f64];
-            let mut above = vec![false; h * h];
-            for y in 0..h {
-                for x in 0..h {
-                    let m = half(node_u(x, y));
-                    above[y * h + x] = 2.0 * wi.dot(m) * m.z - wi.z > 0.0;
-                }
-            }
             let mut visible = vec![0f64; h * h];
             let mut ndf_nodes = vec![0f64; h * h];
             for y in 0..h {
@@ -276,14 +301,7 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
                     let u = node_u(x, y);
                     let m = half(u);
                     let sin_m = (u[0] * u[0] * FRAC_PI_2).sin();
-                    let clear = (y.saturating_sub(1)..(y + 2).min(h)).all(|yy| {
-                        (x.saturating_sub(1)..(x + 2).min(h)).all(|xx| above[yy * h + xx])
-                    });
-                    visible[y * h + x] = if clear {
-                        wi.dot(m).max(0.0) * u[0] * sin_m
-                    } else {
-                        0.0
-                    };
+                    visible[y * h + x] = wi.dot(m).max(0.0) * u[0] * sin_m;
                     ndf_nodes[y * h + x] = ndf_at(u);
                 }
             }
@@ -293,16 +311,106 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
             // Density of the mixture relative to the visible-normal factor, and the share of
             // the VNDF in it (the luminance table divides the mixture back out).
             let mix_at = |d: f64| (1.0 - kappa) * d / sum_true + kappa / sum_flat;
-            let vndf: Vec<f64> = visible
+            let mut vndf: Vec<f64> = visible
                 .iter()
                 .zip(&ndf_nodes)
                 .map(|(v, d)| v * mix_at(*d))
                 .collect();
             let vmax = vndf.iter().cloned().fold(0.0, f64::max);
-            let vndf: Vec<f32> = vndf
+            for v in vndf.iter_mut() {
+                *v = v.max(VNDF_FLOOR * vmax);
+            }
+            // The horizon on the colour grid: beyond its horizon (the u_θ where reflect(wi, m)
+            // reaches wo.z = 0) every VNDF row keeps its own density for a while, then gets a
+            // constant density chosen so that the row's conditional CDF is exactly 1 − β at
+            // the horizon, with the same β for all rows and slices and β a whole number of
+            // colour columns (`align_horizon`). The colour column s_x = 1 − β then lies on
+            // the horizon (it holds f·cos θo = 0), so near the horizon Mitsuba interpolates
+            // f·cos θo between 0 at the horizon and the next column inside, and eval / wo.z
+            // stays near f instead of growing like 1/wo.z.
+            let wo_z = |u: [f64; 2]| {
+                let m = half(u);
+                2.0 * wi.dot(m) * m.z - wi.z
+            };
+            // The horizon u_θ of row y for wi at elevation θ (pure geometry).
+            let horizon_u = |theta: f64, phi: f64, y: usize| {
+                let w = Vec3::from_spherical(theta.min(SLICE_THETA_MAX), phi);
+                let uy = y as f64 / (h - 1) as f64;
+                let z = |ux: f64| {
+                    let m = half([ux, uy]);
+                    2.0 * w.dot(m) * m.z - w.z
+                };
+                bisect(|ux| -z(ux), 0.0)
+            };
+            let k_s = theta_i
                 .iter()
-                .map(|&v| v.max(VNDF_FLOOR * vmax) as f32)
+                .position(|&t| t as f64 == theta_s)
+                .unwrap_or(0);
+            let below = theta_i[k_s.saturating_sub(1)] as f64;
+            let above = theta_i[(k_s + 1).min(nt - 1)] as f64;
+            let p_s = phi_i.iter().position(|&p| p as f64 == phi_s).unwrap_or(0);
+            let phis = [
+                phi_i[p_s.saturating_sub(1)] as f64,
+                phi_s,
+                phi_i[(p_s + 1).min(phi_i.len() - 1)] as f64,
+            ];
+            align_horizon(
+                &mut vndf,
+                h,
+                beta,
+                |x, y| wo_z(node_u(x, y)),
+                |y, lo, hi| {
+                    let uy = y as f64 / (h - 1) as f64;
+                    bisect(|ux| -wo_z([lo + ux * (hi - lo), uy]), 0.0) * (hi - lo) + lo
+                },
+                |y| {
+                    // The largest horizon shift to a neighbouring θi or φi slice or VNDF row
+                    // (or several): where Mitsuba blends them, both CDFs keep their own density.
+                    let here = horizon_u(theta_s, phi_s, y);
+                    let mut span = 0f64;
+                    for theta in [below, theta_s, above] {
+                        for phi in phis {
+                            for yy in [y.saturating_sub(1), y, (y + 1).min(h - 1)] {
+                                span = span.max((horizon_u(theta, phi, yy) - here).abs());
+                            }
+                        }
+                    }
+                    span
+                },
+            );
+            // Every row (azimuth of m) gets at least ROW_SHARE times the mean row mass, so that
+            // the colour grid's rows resolve all azimuths, also where little of the VNDF lies
+            // (behind a grazing wi, where the horizon moves fastest with the azimuth). A row
+            // is scaled as a whole: its conditional CDF, and so the horizon column, is kept.
+            let row_mass: Vec<f64> = (0..h)
+                .map(|y| {
+                    let r = &vndf[y * h..][..h];
+                    r.windows(2).map(|w| (w[0] + w[1]) * 0.5).sum::<f64>()
+                })
                 .collect();
+            let mean_mass = row_mass.iter().sum::<f64>() / h as f64;
+            let row_scale: Vec<f64> = row_mass
+                .iter()
+                .map(|&m| {
+                    if m > 0.0 {
+                        (ROW_SHARE * mean_mass / m).max(1.0)
+                    } else {
+                        1.0
+                    }
+                })
+                .collect();
+            for (y, sc) in row_scale.iter().enumerate() {
+                for v in &mut vndf[y * h..][..h] {
+                    *v *= sc;
+                }
+            }
+            let scale_at = |uy: f64| {
+                let t = uy * (h - 1) as f64;
+                let k = (t.floor() as usize).min(h - 2);
+                let f = t - k as f64;
+                row_scale[k] + f * (row_scale[k + 1] - row_scale[k])
+            };
+            let vndf: Vec<f32> = vndf.iter().map(|&v| v as f32).collect();
             let warp = VndfWarp::build(&vndf, 1, h, h).map_err(Error::Failure)?;
             let blend = SliceBlend {
                 k0: 0,
@@ -322,8 +430,8 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
                     let m = half(u);
                     let wo = m * (2.0 * wi.dot(m)) - wi;
                     // f at wo raised to WO_Z_MIN (f of a wo below the horizon is 0), times
-                    // cos θo clamped at 0: f·cos θo goes to 0 at the horizon, and the nodes
-                    // that map below it (only the warp's far edges) hold 0.
+                    // cos θo: f·cos θo goes to 0 at the horizon (the column 1 − β), and the
+                    // nodes beyond it (wo below the horizon) hold BEYOND_HORIZON.
                     let wo_f = if wo.z < WO_Z_MIN {
                         let r = (wo.x * wo.x + wo.y * wo.y).sqrt();
                         let s = (1.0 - WO_Z_MIN * WO_Z_MIN).sqrt();
@@ -337,13 +445,21 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
                     };
                     let f = rgb_of(wi, wo_f, &mut buf);
                     let scale = wo.z.max(0.0) * 4.0 * sigma_wi / ndf_at(u);
-                    let v = f.map(|c| c * scale);
+                    // Beyond the horizon a tiny positive value, not 0: Mitsuba's χ² adapter
+                    // drops samples whose weight is exactly 0, and where θi slices or VNDF
+                    // rows are blended a sample can read only such nodes while its wo is
+                    // still (just) above the horizon, where pdf() counts it.
+                    let v = if wo.z > 0.0 {
+                        f.map(|c| c * scale)
+                    } else {
+                        [BEYOND_HORIZON; 3]
+                    };
                     for (c, value) in v.iter().enumerate() {
                         rgb[(c * n + j) * n + i] = finite_f32(*value);
                     }
                     // Sampling density ∝ VNDF × luminance(rgb) ∝ f cos θo: undo the mixture.
                     let d = ndf_at(u);
-                    let vndf_share = ((d / sum_true) / mix_at(d)).max(0.0);
+                    let vndf_share = ((d / sum_true) / mix_at(d) / scale_at(uy)).max(0.0);
                     lum[j * n + i] = luminance(v).max(0.0) * vndf_share;
                 }
             }
@@ -437,6 +553,84 @@ pub fn rewrite_rgl(bytes: &[u8], name: &str) -> Result<Vec<u8>> {
         })
         .collect();
     Ok(encode(&fields))
+}
+
+/// Makes the horizon of every VNDF row land on the same point 1 − β of its conditional CDF
+/// (module comment, step 3). `vndf` is the H×H density (rows y over u_φ, columns x over u_θ),
+/// `wo_z(x, y)` the height of reflect(wi, m) at a node, `cross(y, lo, hi)` the u_θ in
+/// [lo, hi] where it is 0 and `span(y)` how far beyond its horizon the row keeps its own
+/// density (the horizon shift to the neighbouring θi slices, so that where Mitsuba blends two
+/// slices the two CDFs move past the query's horizon at the same rate). The nodes beyond that
+/// get the constant density c_y ≥ 0 with ∫ beyond = β/(1 − β) ∫ before (linear in c_y,
+/// trapezoids as Mitsuba's CDF); a row whose own density beyond the horizon already exceeds
+/// that share keeps fewer nodes (down to the straddling node, then a lowered constant).
+/// Rows without a horizon are left as they are.
+fn align_horizon(
+    vndf: &mut [f64],
+    h: usize,
+    beta: f64,
+    wo_z: impl Fn(usize, usize) -> f64,
+    cross: impl Fn(usize, f64, f64) -> f64,
+    span: impl Fn(usize) -> f64,
+) {
+    let du = 1.0 / (h - 1) as f64;
+    let k = beta / (1.0 - beta);
+    for y in 0..h {
+        let Some(first_below) = (0..h).find(|&x| wo_z(x, y) <= 0.0) else {
+            continue;
+        };
+        if first_below == 0 {
+            continue;
+        }
+        let i = first_below - 1;
+        let (lo, hi) = (i as f64 * du, (i + 1) as f64 * du);
+        let u_h = cross(y, lo, hi);
+        let t = ((u_h - lo) / du).clamp(0.0, 1.0);
+        let row = &mut vndf[y * h..][..h];
+        let before: f64 = (0..i).map(|x| (row[x] + row[x + 1]) * 0.5 * du).sum();
+        let rho_h = row[i] + t * (row[i + 1] - row[i]);
+        let a = before + t * du * (row[i] + rho_h) * 0.5;
+        let target = k * a;
+        // Beyond mass with nodes i+1..=j natural and the rest c: b0(j) + b1(j)·c.
+        let tail = (1.0 - t) * du * (rho_h + row[i + 1]) * 0.5;
+        let want = ((u_h + span(y)) / du).ceil() as usize;
+        // (The cell after node j carries at least row[j]·du/2 whatever c is.)
+        let mut j = i + 1;
+        let mut b0 = tail;
+        while j < want.min(h - 2) {
+            let next = b0 + (row[j] + row[j + 1]) * 0.5 * du;
+            if next + row[j + 1] * 0.5 * du > target {
+                break;
+            }
+            b0 = next;
+            j += 1;
+        }
+        if j < h - 1 && b0 + row[j] * 0.5 * du <= target {
+            // Nodes j+1.. = c: (row[j] + c)/2·du + (h − 2 − j)·du·c.
+            let b0c = b0 + row[j] * 0.5 * du;
+            let b1 = 0.5 * du + (h - 2 - j) as f64 * du;
+            let c = ((target - b0c) / b1).max(0.0);
+            for v in &mut row[j + 1..] {
+                *v = c;
+            }
+        } else {
+            // Even the straddling cell carries too much: all beyond nodes one constant c.
+            // before + t·du·(row[i] + ρ_h(c))/2 = a(c), ρ_h(c) = row[i] + t(c − row[i]).
+            let a0 = before + t * du * row[i] * (2.0 - t) * 0.5;
+            let a1 = t * t * du * 0.5;
+            let b0 = (1.0 - t) * (1.0 - t) * du * row[i] * 0.5;
+            let b1 = (1.0 - t) * (1.0 + t) * du * 0.5 + (h - 2 - i) as f64 * du;
+            let den = b1 - k * a1;
+            let c = if den > 0.0 {
+                ((k * a0 - b0) / den).max(0.0)
+            } else {
+                0.0
+            };
+            for v in &mut row[i + 1..] {
+                *v = c;
+            }
+        }
+    }
 }
 
 struct SliceTables {
