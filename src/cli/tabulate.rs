@@ -13,7 +13,7 @@ pub struct TabulateArgs {
     /// Model spec (e.g. `ggx:alpha=0.2,fresnel=au`, JSON, @file.json), table file (.bpk, .exr,
     /// MERL .binary) or RGL .bsdf file.
     pub source: String,
-    /// Grid: `merl` or KIND:DIMS[,warp=..][,at=center|edge][,theta-max=DEG]
+    /// Grid: `merl` or KIND:DIMS[,warp=..][,at=center|edge][,theta-max=DEG][,weight=none|cosine][,space=linear|log:S]
     /// (KIND spherical4|spherical3|halfdiff3|halfdiff4; see docs/parameterizations.md).
     #[arg(long, default_value = "merl")]
     pub grid: String,
