@@ -1193,11 +1193,17 @@ fn thousands_of_spectral_channels_are_refused_up_front() {
 }
 
 /// Peak resident memory (KiB) of a command, from wait4's rusage, and its exit status.
+fn peak_rss_kib(dir: &Path, args: &[&str]) -> (i32, i64) {
+    peak_rss_kib_with(dir, &[], args)
+}
+
+/// [`peak_rss_kib`] with environment variables set for the child.
 // The child is reaped by wait4 (which std's `wait` cannot do: it drops the rusage).
 #[allow(clippy::zombie_processes)]
-fn peak_rss_kib(dir: &Path, args: &[&str]) -> (i32, i64) {
+fn peak_rss_kib_with(dir: &Path, env: &[(&str, &str)], args: &[&str]) -> (i32, i64) {
     let child = brdfpack()
         .current_dir(dir)
+        .envs(env.iter().copied())
         .args(args)
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
@@ -1279,4 +1285,27 @@ fn peak_memory_stays_within_twice_the_table_plus_64_mb() {
             stderr(&o)
         );
     }
+}
+
+#[test]
+fn the_default_pack_peaks_within_128_mb() {
+    // Issue 19's bound for `pack` on a MERL-sized table (90×90×180 RGB, 17.5 MB of f32): peak
+    // RSS ≤ 128 MB. It peaked at 162–166 MB (f64 DCT coefficients, a second copy of the
+    // estimation pairs, a decoder scratch kept across candidates, freed blocks kept resident
+    // by glibc's adaptive mmap threshold); now 116–118 MB (release) on this 2-core machine.
+    // Two worker threads, so that the thread stacks and allocator arenas do not depend on the
+    // machine's cores.
+    let dir = tempfile::tempdir().unwrap();
+    let (code, kib) = peak_rss_kib_with(
+        dir.path(),
+        &[("RAYON_NUM_THREADS", "2")],
+        &["pack", "-q", "-o", "gold.bpk"],
+    );
+    assert_eq!(code, 0);
+    let bytes = std::fs::metadata(dir.path().join("gold.bpk"))
+        .unwrap()
+        .len();
+    println!("pack -o gold.bpk: peak RSS {} KiB, {bytes} B", kib);
+    // 128 MB = 125,000 KiB.
+    assert!(kib <= 125_000, "pack: peak RSS {kib} KiB > 128 MB");
 }

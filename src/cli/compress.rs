@@ -209,6 +209,9 @@ fn run_budget(
     };
     bar.finish();
     let planned = planned?;
+    // The planner's estimation sets, stencils and coefficients are freed: handed back before
+    // the read-back and the check, they do not add to the peak.
+    crate::memory::release_free_memory();
     let e = &planned.encoded;
     let bytes = native::to_bytes(&planned.table, &e.spec)?;
     atomic::write_output(&a.output, &bytes)?;

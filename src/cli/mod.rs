@@ -216,6 +216,7 @@ pub(crate) fn stdout_error(e: std::io::Error) -> crate::Error {
 
 /// Runs the CLI and returns the process exit code.
 pub fn main() -> i32 {
+    crate::memory::return_large_blocks();
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {

@@ -194,6 +194,9 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             );
             bar.finish();
             let planned = planned?;
+            // The planner's estimation sets, stencils and coefficients are freed: handed back before
+            // the read-back and the check, they do not add to the peak.
+            crate::memory::release_free_memory();
             let bytes = native::to_bytes(&planned.table, &planned.encoded.spec)?;
             Packed {
                 codec: planned.encoded.spec.clone(),

@@ -1021,7 +1021,12 @@ pub(crate) fn decode_with(
 /// Dead-zone quantization: coefficients with |c| < `deadzone` × step become 0, the others are
 /// rounded as [`dct::quantize`] does (the decoder's reconstruction q × step is unchanged).
 /// Zeroing the many small coefficients costs a little error and saves their bits.
-pub fn quantize_deadzone(coef: &[f64], dims: &[usize], step: f64, deadzone: f64) -> Coefficients {
+pub fn quantize_deadzone<T: Copy + Into<f64>>(
+    coef: &[T],
+    dims: &[usize],
+    step: f64,
+    deadzone: f64,
+) -> Coefficients {
     if deadzone <= 0.5 {
         return dct::quantize(coef, dims, step);
     }
@@ -1029,9 +1034,10 @@ pub fn quantize_deadzone(coef: &[f64], dims: &[usize], step: f64, deadzone: f64)
     dct::quantize_above(coef, dims, step, deadzone * step)
 }
 
-/// Every component quantized with its step and the dead zone.
-pub fn quantize_all(
-    coefs: &[Vec<f64>],
+/// Every component quantized with its step and the dead zone (f64 coefficients, or the
+/// planner's f32 ones: [`dct::quantize`]).
+pub fn quantize_all<T: Copy + Into<f64>>(
+    coefs: &[Vec<T>],
     dims: &[usize],
     steps: &[f64],
     deadzone: f64,

@@ -95,9 +95,15 @@ where
 
 /// Full forward DCT of one plane (parallel: the encoder's cost).
 pub fn forward(plane: &[f64], dims: &[usize]) -> Vec<f64> {
+    forward_owned(plane.to_vec(), dims)
+}
+
+/// [`forward`] of a plane the caller no longer needs: its array is the first of the two the
+/// passes use in turn (no copy of the plane; same bits).
+pub fn forward_owned(plane: Vec<f64>, dims: &[usize]) -> Vec<f64> {
     // Two arrays used in turn: a fresh one per axis cost page faults on every pass (134 MB
     // per component on a halfdiff4:64 table, several forward transforms per search trial).
-    let mut cur = plane.to_vec();
+    let mut cur = plane;
     let mut next = Vec::new();
     for a in 0..dims.len() {
         let mat = dct_matrix(dims[a]);
@@ -350,7 +356,7 @@ pub fn check_range(coef: &[f64], step: f64) -> Result<()> {
 }
 
 /// Quantizes a coefficient plane with `step` and keeps the smallest box holding every nonzero.
-pub fn quantize(coef: &[f64], dims: &[usize], step: f64) -> Coefficients {
+pub fn quantize<T: Copy + Into<f64>>(coef: &[T], dims: &[usize], step: f64) -> Coefficients {
     quantize_above(coef, dims, step, 0.0)
 }
 
@@ -358,8 +364,10 @@ pub fn quantize(coef: &[f64], dims: &[usize], step: f64) -> Coefficients {
 /// dead zone; 0 for none: no magnitude, not even NaN's, compares below it). The box is found
 /// and gathered a line (of the last axis) at a time: per element, the multi-index arithmetic
 /// (d divisions) cost more than the quantization in a budget search on a 4-D table.
-pub(crate) fn quantize_above(
-    coef: &[f64],
+/// The coefficients may be held in f32 (the planner's, half the memory): each is widened to
+/// f64 exactly, then quantized as an f64 coefficient of that value.
+pub(crate) fn quantize_above<T: Copy + Into<f64>>(
+    coef: &[T],
     dims: &[usize],
     step: f64,
     threshold: f64,
@@ -368,6 +376,7 @@ pub(crate) fn quantize_above(
     let q: Vec<i32> = coef
         .iter()
         .map(|&c| {
+            let c: f64 = c.into();
             if c.abs() < threshold {
                 0
             } else {

@@ -73,10 +73,65 @@ pub struct ErrorEstimator {
 
 /// The estimation set ([`ESTIMATE_SEED`], `n` pairs) with the reference values of `source`.
 /// Independent of any grid: built once and shared by every grid a planner tries.
+///
+/// The pairs themselves are not held: they are drawn again from their seed when an
+/// estimator is built ([`ReferenceSet::set`]; a few milliseconds), since each estimator keeps
+/// its own copy in its own order (48 B a pair: 9 MB for the default estimation and check sets
+/// that a held copy would add to the planner's peak).
 pub struct ReferenceSet {
-    pub set: SampleSet,
+    draw: Draw,
+    len: usize,
     pub values: Vec<f64>,
     pub channels: usize,
+}
+
+/// How a [`ReferenceSet`]'s pairs are drawn (deterministic: the same pairs every time).
+enum Draw {
+    /// `n` uniform pairs from `seed`.
+    Uniform { n: usize, seed: u64 },
+    /// Uniform pairs from [`ESTIMATE_SEED`] and the seeds after it until `n` fall inside the
+    /// stored domain of `domain`.
+    FilledIn { n: usize, domain: Box<Grid> },
+    /// `n` uniform pairs from `seed`, those inside the stored domain of `domain` kept.
+    KeptIn {
+        n: usize,
+        seed: u64,
+        domain: Box<Grid>,
+    },
+}
+
+impl Draw {
+    fn set(&self) -> SampleSet {
+        match self {
+            Draw::Uniform { n, seed } => SampleSet::uniform(*n, *seed),
+            Draw::FilledIn { n, domain } => {
+                let n = *n;
+                let mut pairs = Vec::with_capacity(n);
+                let mut round = 0u64;
+                // Rounds of 2n candidates from consecutive seeds; a domain of θmax > 0 always
+                // fills.
+                while pairs.len() < n {
+                    let more = SampleSet::uniform(2 * n.max(1), ESTIMATE_SEED.wrapping_add(round));
+                    pairs.extend(
+                        more.pairs
+                            .into_iter()
+                            .filter(|&(wi, wo)| domain.in_domain(wi, wo))
+                            .take(n - pairs.len()),
+                    );
+                    round += 1;
+                }
+                SampleSet {
+                    name: "uniform".into(),
+                    seed: Some(ESTIMATE_SEED),
+                    pairs,
+                    weights: None,
+                }
+            }
+            Draw::KeptIn { n, seed, domain } => {
+                SampleSet::uniform(*n, *seed).restricted(|wi, wo| domain.in_domain(wi, wo))
+            }
+        }
+    }
 }
 
 /// A sample set, its reference values and a table's stencils at its pairs.
@@ -92,18 +147,19 @@ impl Scored {
     /// depend on pair order).
     fn new(table: &Table, reference: &ReferenceSet) -> Scored {
         let c = reference.channels;
-        let stencil = table.stencil(&reference.set.pairs, Interp::Linear);
+        let set = reference.set();
+        let stencil = table.stencil(&set.pairs, Interp::Linear);
         let mut order: Vec<usize> = (0..stencil.len()).collect();
         order.sort_by_key(|&p| (stencil.first_cell(p), p));
-        let pairs = order.iter().map(|&p| reference.set.pairs[p]).collect();
+        let pairs = order.iter().map(|&p| set.pairs[p]).collect();
         let mut values = Vec::with_capacity(reference.values.len());
         for &p in &order {
             values.extend_from_slice(&reference.values[p * c..(p + 1) * c]);
         }
         Scored {
             set: SampleSet {
-                name: reference.set.name.clone(),
-                seed: reference.set.seed,
+                name: set.name,
+                seed: set.seed,
                 pairs,
                 weights: None,
             },
@@ -128,13 +184,25 @@ impl ReferenceSet {
 
     /// `n` uniform pairs from `seed` (a user's check set).
     pub fn uniform(source: &dyn Brdf, n: usize, seed: u64) -> ReferenceSet {
-        let set = SampleSet::uniform(n, seed);
+        ReferenceSet::drawn(source, Draw::Uniform { n, seed })
+    }
+
+    /// The set `draw` gives, evaluated on `source`; its pairs are dropped (drawn again by
+    /// [`ReferenceSet::set`]).
+    fn drawn(source: &dyn Brdf, draw: Draw) -> ReferenceSet {
+        let set = draw.set();
         let values = evaluate_set(source, &set);
         ReferenceSet {
-            set,
+            draw,
+            len: set.pairs.len(),
             values,
             channels: source.channels().len(),
         }
+    }
+
+    /// The pairs, drawn again (the same pairs every call, in the same order).
+    pub fn set(&self) -> SampleSet {
+        self.draw.set()
     }
 
     /// [`ReferenceSet::new`] inside a table's stored domain (θi, θo ≤ θmax of `domain`):
@@ -144,31 +212,13 @@ impl ReferenceSet {
         let Some(g) = domain.filter(|g| g.theta_max().is_some()) else {
             return ReferenceSet::new(source, n);
         };
-        let mut pairs = Vec::with_capacity(n);
-        let mut round = 0u64;
-        // Rounds of 2n candidates from consecutive seeds; a domain of θmax > 0 always fills.
-        while pairs.len() < n {
-            let more = SampleSet::uniform(2 * n.max(1), ESTIMATE_SEED.wrapping_add(round));
-            pairs.extend(
-                more.pairs
-                    .into_iter()
-                    .filter(|&(wi, wo)| g.in_domain(wi, wo))
-                    .take(n - pairs.len()),
-            );
-            round += 1;
-        }
-        let set = SampleSet {
-            name: "uniform".into(),
-            seed: Some(ESTIMATE_SEED),
-            pairs,
-            weights: None,
-        };
-        let values = evaluate_set(source, &set);
-        ReferenceSet {
-            set,
-            values,
-            channels: source.channels().len(),
-        }
+        ReferenceSet::drawn(
+            source,
+            Draw::FilledIn {
+                n,
+                domain: Box::new(g.clone()),
+            },
+        )
     }
 
     /// [`ReferenceSet::uniform`] restricted to a table's stored domain, as `check` restricts
@@ -182,22 +232,23 @@ impl ReferenceSet {
         let Some(g) = domain.filter(|g| g.theta_max().is_some()) else {
             return ReferenceSet::uniform(source, n, seed);
         };
-        let set = SampleSet::uniform(n, seed).restricted(|wi, wo| g.in_domain(wi, wo));
-        let values = evaluate_set(source, &set);
-        ReferenceSet {
-            set,
-            values,
-            channels: source.channels().len(),
-        }
+        ReferenceSet::drawn(
+            source,
+            Draw::KeptIn {
+                n,
+                seed,
+                domain: Box::new(g.clone()),
+            },
+        )
     }
 
     /// Pairs in the set.
     pub fn len(&self) -> usize {
-        self.set.pairs.len()
+        self.len
     }
 
     pub fn is_empty(&self) -> bool {
-        self.set.pairs.is_empty()
+        self.len == 0
     }
 
     /// ε of the relative metrics on this set: 1e-3 · mean |f| (`spec/metrics.md`).
@@ -467,7 +518,7 @@ mod tests {
             table: t.clone(),
             interp: Interp::Linear,
         };
-        let direct_check = crate::check::check_set(&m, &cand_check, &check.set).unwrap();
+        let direct_check = crate::check::check_set(&m, &cand_check, &check.set()).unwrap();
         // Same pairs, summed in another order (the estimator sorts them by stencil cell):
         // equal up to the sums' rounding.
         let (a, b) = (e.check.as_ref().unwrap(), &direct_check.combined);
@@ -486,9 +537,9 @@ mod tests {
             table: t,
             interp: Interp::Linear,
         };
-        let g = evaluate_set(&cand, &reference.set);
+        let g = evaluate_set(&cand, &reference.set());
         let direct = metrics(
-            &reference.set,
+            &reference.set(),
             &reference.values,
             &g,
             reference.channels,

@@ -180,8 +180,9 @@ pub fn encode_within(
     let c = table.channels().len();
     let mut trials = Vec::new();
     let mut best: Option<(CodecSpec, Vec<u8>, Estimate)> = None;
-    let mut scratch = DecodeScratch::default();
-    let mut decoded = vec![0f32; table.data().len()];
+    // The decode buffer is allocated when the first candidate is decoded (after the forward
+    // DCT, whose planes are the larger transient).
+    let mut decoded: Vec<f32> = Vec::new();
     let has_negative = table
         .data()
         .chunks_exact(c)
@@ -207,12 +208,29 @@ pub fn encode_within(
             Curve::Log { eps: vec![eps; c] }
         };
         let transform = transform_with_curve(table, curve, true, None);
+        // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid)
+        // and the estimator's construction are freed: handed back before the DCT's planes.
+        crate::memory::release_free_memory();
         progress("forward DCT");
         let dims = table.grid().shape();
-        let coefs: Vec<Vec<f64>> = filled_planes(table, &transform)
+        // The coefficients are kept in f32 for the rate control (half the memory: 17.5 MB
+        // instead of 35 MB on the MERL grid): the quantizer widens each back to f64 exactly,
+        // so a code differs from the f64 coefficient's only where the f32 rounding (a relative
+        // 6e-8) crosses a rounding or dead-zone boundary. The largest magnitude, which sets
+        // the bisection's range of steps, is taken from the f64 values. Each plane is
+        // transformed in its own array and narrowed as soon as it is done.
+        let mut max_coef = 0.0f64;
+        let coefs: Vec<Vec<f32>> = filled_planes(table, &transform)
             .into_iter()
-            .map(|p| dct::forward(&p, &dims))
+            .map(|p| {
+                let f = dct::forward_owned(p, &dims);
+                max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs()));
+                f.iter().map(|&c| c as f32).collect()
+            })
             .collect();
+        if decoded.is_empty() {
+            decoded = vec![0f32; table.data().len()];
+        }
         timings.push((
             format!("transform + DCT (ε×{scale})"),
             t.elapsed().as_secs_f64(),
@@ -227,8 +245,8 @@ pub fn encode_within(
                 layout: &layout,
                 transform: &transform,
                 coefs: &coefs,
+                max_coef,
                 variant: *v,
-                scratch: &mut scratch,
                 decoded: &mut decoded,
                 trials: &mut trials,
                 progress,
@@ -277,9 +295,11 @@ struct Control<'a> {
     floor: &'a Estimate,
     layout: &'a Layout<'a>,
     transform: &'a Transform,
-    coefs: &'a [Vec<f64>],
+    /// The DCT coefficients in f32 (see [`encode_within`]) and the largest |c| of the f64
+    /// ones.
+    coefs: &'a [Vec<f32>],
+    max_coef: f64,
     variant: Variant,
-    scratch: &'a mut DecodeScratch,
     decoded: &'a mut Vec<f32>,
     trials: &'a mut Vec<RateTrial>,
     progress: Progress<'a>,
@@ -304,11 +324,7 @@ impl Control<'_> {
             })
             .collect();
         let mse_max = mse(self.coefs, f64::INFINITY, self.variant.deadzone);
-        let max_coef = self
-            .coefs
-            .iter()
-            .flat_map(|p| p.iter())
-            .fold(0.0f64, |m, c| m.max(c.abs()));
+        let max_coef = self.max_coef;
         // Steps below this would need more than 2^29 levels for the largest coefficient.
         let s_min = (max_coef / (1u64 << 29) as f64).max(1e-9);
         let s_max = (4.0 * max_coef).max(s_min * 2.0);
@@ -460,7 +476,17 @@ impl Control<'_> {
                 v.deadzone,
             ))
         };
-        spec.decode_into_with(&payload, self.layout, self.decoded, self.scratch)?;
+        // A scratch of its own, freed after the decode: kept across candidates, its 16 MB
+        // (MERL grid) would sit beside the next candidate's quantized codes and the
+        // measurement's arrays.
+        let mut scratch = DecodeScratch::default();
+        // The decode is the rate control's peak (the table, the coefficients, the decode
+        // buffer and the decoder's scratch): what earlier stages freed (the DCT's planes, the
+        // transform's samples, the last candidate's codes and measurement) must not stay
+        // resident beside it.
+        crate::memory::release_free_memory();
+        spec.decode_into_with(&payload, self.layout, self.decoded, &mut scratch)?;
+        drop(scratch);
         if self.decoded.iter().any(|v| !v.is_finite()) {
             return Err(Error::Failure(format!(
                 "rate control: step {s:e} decoded to a non-finite value"
@@ -520,7 +546,7 @@ fn initial_k(metric: &str) -> f64 {
 /// D(s): the mean squared error the dead-zone quantizer of step `s` leaves in the
 /// coefficients, which (orthonormal DCT) is that of the curve-space planes over all cells.
 /// Deterministic: fixed chunks summed in order.
-fn mse(coefs: &[Vec<f64>], s: f64, deadzone: f64) -> f64 {
+fn mse(coefs: &[Vec<f32>], s: f64, deadzone: f64) -> f64 {
     const CHUNK: usize = 1 << 15;
     let threshold = deadzone.max(0.5) * s;
     let mut total = 0.0;
@@ -531,6 +557,7 @@ fn mse(coefs: &[Vec<f64>], s: f64, deadzone: f64) -> f64 {
             .map(|ch| {
                 let mut acc = 0.0;
                 for &c in ch {
+                    let c = c as f64;
                     let e = if c.abs() < threshold || !s.is_finite() {
                         c
                     } else {
@@ -549,7 +576,7 @@ fn mse(coefs: &[Vec<f64>], s: f64, deadzone: f64) -> f64 {
 
 /// The largest step in [lo, hi] with D(step) ≤ `target` (bisection in log step; D grows with
 /// the step up to quantization's ripples, which 30 halvings resolve well below 1%).
-fn step_for_mse(coefs: &[Vec<f64>], deadzone: f64, target: f64, lo: f64, hi: f64) -> f64 {
+fn step_for_mse(coefs: &[Vec<f32>], deadzone: f64, target: f64, lo: f64, hi: f64) -> f64 {
     let (mut lo, mut hi) = (lo.ln(), hi.ln());
     if mse(coefs, lo.exp(), deadzone) > target {
         return lo.exp();
@@ -595,7 +622,10 @@ mod tests {
         let tr = transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
         let dims = g.shape();
         let planes = filled_planes(&t, &tr);
-        let coefs: Vec<Vec<f64>> = planes.iter().map(|p| dct::forward(p, &dims)).collect();
+        let coefs: Vec<Vec<f32>> = planes
+            .iter()
+            .map(|p| dct::forward(p, &dims).iter().map(|&c| c as f32).collect())
+            .collect();
         for s in [0.01, 0.1, 0.7] {
             let d = mse(&coefs, s, 0.75);
             let mut direct = 0.0;
