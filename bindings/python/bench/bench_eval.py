@@ -13,14 +13,20 @@ the ratio of the medians (Python / Rust throughput).
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
 import time
 
-import numpy as np
+# NumPy's OpenBLAS starts a thread per core at import, which busy-waits beside rayon's threads
+# (~3% of an `eval` in perf) although nothing here calls BLAS (`eval` is brdfpack's own
+# lookup): one BLAS thread, set before NumPy is imported. A caller's own setting is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import brdfpack
+import numpy as np  # noqa: E402
+
+import brdfpack  # noqa: E402
 
 # src/bench.rs PEER_GGX.
 PEER_GGX = (
