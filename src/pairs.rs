@@ -153,24 +153,42 @@ impl Evaluable {
             && !opts.exact
             && c > 0
         {
-            // One pass per chunk of rows: check and normalize them into a small buffer, then
-            // look them up (the two-pass form wrote and re-read 48 bytes per pair, a fifth of
-            // a 10⁶-pair call). The first bad row is the error, for any thread count.
+            // One pass per chunk of rows: normalize them into a small buffer, then look them
+            // up (the two-pass form wrote and re-read 48 bytes per pair, a fifth of a
+            // 10⁶-pair call). The first bad row is the error, for any thread count.
             const ROWS: usize = 4096;
+            // A table's domain rule (`InterpolatedTable::in_domain`) is true for every pair
+            // when its grid has no θ limit: then no pair needs the check. With one, every pair
+            // above the horizon is checked, as `checked_pair` does.
+            let limited = !opts.outside_domain_zero && t.table.grid().theta_max().is_some();
             let first_bad = out
                 .par_chunks_mut(ROWS * c)
                 .enumerate()
-                .map_init(
-                    || Vec::with_capacity(ROWS),
-                    |buf, (k, out)| {
-                        buf.clear();
-                        for j in 0..out.len() / c {
-                            buf.push(checked_pair(brdf, wi, wo, k * ROWS + j, opts)?);
+                .map_init(Vec::new, |buf, (k, out)| {
+                    let (first, rows) = (k * ROWS, out.len() / c);
+                    buf.resize(rows, (Vec3::Z, Vec3::Z));
+                    let (a, b) = (
+                        &wi[3 * first..3 * (first + rows)],
+                        &wo[3 * first..3 * (first + rows)],
+                    );
+                    // Rows the quick normalization leaves (a zero, huge, tiny or non-finite
+                    // vector) and the domain rule, in row order: the first error is the first
+                    // bad row's.
+                    if !unit_rows(a, b, buf) || limited {
+                        for (j, pair) in buf.iter_mut().enumerate() {
+                            let (i, o) = (&a[3 * j..3 * j + 3], &b[3 * j..3 * j + 3]);
+                            if unit_quick(i[0], i[1], i[2]).1 && unit_quick(o[0], o[1], o[2]).1 {
+                                if limited {
+                                    check_domain(brdf, *pair, first + j)?;
+                                }
+                            } else {
+                                *pair = checked_pair(brdf, wi, wo, first + j, opts)?;
+                            }
                         }
-                        t.table.eval_batch_serial(buf, t.interp, out);
-                        Ok(())
-                    },
-                )
+                    }
+                    t.table.eval_batch_serial(buf, t.interp, out);
+                    Ok(())
+                })
                 .collect::<Vec<Result<()>>>()
                 .into_iter()
                 .find(|r| r.is_err());
@@ -220,14 +238,69 @@ fn checked_pair(
     let (i, o) = (&wi[3 * row..3 * row + 3], &wo[3 * row..3 * row + 3]);
     let wi = unit_direction([i[0], i[1], i[2]], "wi").map_err(at)?;
     let wo = unit_direction([o[0], o[1], o[2]], "wo").map_err(at)?;
-    if !opts.outside_domain_zero
-        && let Some(why) = outside_domain(brdf, wi, wo)
-    {
-        return Err(at(format!(
-            "{why}; ask for outside-domain-zero to get 0 there"
-        )));
+    if !opts.outside_domain_zero {
+        check_domain(brdf, (wi, wo), row)?;
     }
     Ok((wi, wo))
+}
+
+/// The error of row `row` when its pair is beyond the source's stored domain.
+#[inline]
+fn check_domain(brdf: &dyn Brdf, (wi, wo): (Vec3, Vec3), row: usize) -> Result<()> {
+    match outside_domain(brdf, wi, wo) {
+        None => Ok(()),
+        Some(why) => Err(Error::Input(format!(
+            "row {row}: {why}; ask for outside-domain-zero to get 0 there"
+        ))),
+    }
+}
+
+/// `(x, y, z)` normalized as [`unit_direction`] does when its squared length is a finite
+/// number of at least `f64::MIN_POSITIVE` (then every component is finite too), and whether
+/// it is: the same operations (`Vec3::try_normalize`: x·x + y·y + z·z, then each component
+/// × 1/√l2), so the same bits. Without branches, so that a loop of it vectorizes.
+#[inline(always)]
+fn unit_quick(x: f64, y: f64, z: f64) -> (Vec3, bool) {
+    let l2 = x * x + y * y + z * z;
+    // NaN and ∞ are outside the range.
+    let ok = (f64::MIN_POSITIVE..=f64::MAX).contains(&l2);
+    let s = 1.0 / l2.sqrt();
+    (Vec3::new(x * s, y * s, z * s), ok)
+}
+
+/// The rows of `wi` and `wo` (3 numbers each) normalized into `pairs` by [`unit_quick`];
+/// whether every row took it (the others hold garbage, for [`checked_pair`] to redo).
+fn unit_rows(wi: &[f64], wo: &[f64], pairs: &mut [(Vec3, Vec3)]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::avx2() {
+        // SAFETY: only called when the CPU reports AVX2.
+        return unsafe { unit_rows_avx2(wi, wo, pairs) };
+    }
+    unit_rows_impl(wi, wo, pairs)
+}
+
+/// [`unit_rows_impl`] compiled for AVX2: 4-lane square roots and divisions, which round
+/// like the scalar ones (IEEE: correctly rounded), and no FMA (Rust never contracts `a·b + c`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn unit_rows_avx2(wi: &[f64], wo: &[f64], pairs: &mut [(Vec3, Vec3)]) -> bool {
+    unit_rows_impl(wi, wo, pairs)
+}
+
+#[inline(always)]
+fn unit_rows_impl(wi: &[f64], wo: &[f64], pairs: &mut [(Vec3, Vec3)]) -> bool {
+    let mut all = true;
+    for ((i, o), pair) in wi
+        .chunks_exact(3)
+        .zip(wo.chunks_exact(3))
+        .zip(pairs.iter_mut())
+    {
+        let (u, ok_u) = unit_quick(i[0], i[1], i[2]);
+        let (v, ok_v) = unit_quick(o[0], o[1], o[2]);
+        *pair = (u, v);
+        all &= ok_u & ok_v;
+    }
+    all
 }
 
 #[cfg(test)]
@@ -354,6 +427,134 @@ mod tests {
                 "row 5000: wo has a NaN or infinite component"
             );
         }
+    }
+
+    #[test]
+    fn quick_rows_normalize_to_the_bits_of_unit_direction() {
+        let mut rng = crate::math::SplitMix64::new(7);
+        let mut rows: Vec<[f64; 3]> = (0..997)
+            .map(|_| {
+                let e = rng.next_f64() * 40.0 - 20.0;
+                [0, 1, 2].map(|_| (rng.next_f64() * 2.0 - 1.0) * 10f64.powf(e))
+            })
+            .collect();
+        let odd = [
+            [1e200, 0.0, 1e200],
+            [3e-162, 0.0, 3e-162],
+            [5e-324, 0.0, 0.0],
+            [f64::MAX, 0.0, 0.0],
+            [0.0, -0.0, 0.0],
+            [f64::NAN, 0.0, 1.0],
+            [0.0, f64::INFINITY, 1.0],
+            [1e154, 1e154, 1e154],
+            [1.4e-154, 0.0, 0.0],
+            [0.0, 0.0, -2.0],
+        ];
+        rows.extend(odd);
+        let flat: Vec<f64> = rows.iter().flatten().copied().collect();
+        let rev: Vec<f64> = rows.iter().rev().flatten().copied().collect();
+        let n = rows.len();
+        let mut quick = vec![(Vec3::Z, Vec3::Z); n];
+        let mut portable = quick.clone();
+        assert!(!unit_rows(&flat, &rev, &mut quick));
+        assert!(!unit_rows_impl(&flat, &rev, &mut portable));
+        assert!(unit_rows(&flat[..30], &rev[30..60], &mut quick[..10]));
+        unit_rows(&flat, &rev, &mut quick);
+        let mut taken = 0;
+        for j in 0..n {
+            let (v, w) = (rows[j], rows[n - 1 - j]);
+            let want = (unit_direction(v, "wi"), unit_direction(w, "wo"));
+            let oks = (
+                unit_quick(v[0], v[1], v[2]).1,
+                unit_quick(w[0], w[1], w[2]).1,
+            );
+            let bits = |p: Vec3| p.to_array().map(f64::to_bits);
+            if oks.0 {
+                assert_eq!(bits(quick[j].0), bits(want.0.clone().unwrap()), "{v:?}");
+                assert_eq!(bits(portable[j].0), bits(want.0.unwrap()), "{v:?}");
+                taken += 1;
+            }
+            if oks.1 {
+                assert_eq!(bits(quick[j].1), bits(want.1.unwrap()), "{w:?}");
+            }
+        }
+        // The rows of magnitude ~1e±20 (and the plain ones above) take the quick path; the
+        // zero, huge, tiny and non-finite ones do not.
+        assert!(taken >= 990, "{taken}");
+        for v in odd.iter().take(9) {
+            assert!(!unit_quick(v[0], v[1], v[2]).1, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn theta_max_table_arrays_check_every_pair_like_one_call_per_pair() {
+        let t = crate::tabulate::tabulate(
+            &crate::model::Model::parse("ggx:alpha=0.3,fresnel=au").unwrap(),
+            &crate::grid::parse_grid_spec("halfdiff3:8x8x16,theta-max=60").unwrap(),
+            &Default::default(),
+        )
+        .unwrap();
+        let e = Evaluable::Table(InterpolatedTable {
+            table: t,
+            interp: Interp::Linear,
+        });
+        // 5000 pairs within 50° (× 7 and with huge and tiny rows among them), one beyond.
+        let mut rng = crate::math::SplitMix64::new(3);
+        let mut dir = || {
+            let th = 0.87 * rng.next_f64();
+            let ph = std::f64::consts::TAU * rng.next_f64();
+            Vec3::from_spherical(th, ph).to_array().map(|x| 7.0 * x)
+        };
+        let mut wi: Vec<f64> = (0..5000).flat_map(|_| dir()).collect();
+        let wo: Vec<f64> = (0..5000).flat_map(|_| dir()).collect();
+        wi[3 * 10..3 * 10 + 3].copy_from_slice(&[1e200, 0.0, 1e200]);
+        wi[3 * 4500..3 * 4500 + 3].copy_from_slice(&[1e-170, 0.0, 2e-170]);
+        let mut got = vec![f64::NAN; 15_000];
+        let mut exact = got.clone();
+        let x = EvalOptions {
+            exact: true,
+            ..Default::default()
+        };
+        e.eval_arrays(&wi, &wo, EvalOptions::default(), &mut got)
+            .unwrap();
+        e.eval_arrays(&wi, &wo, x, &mut exact).unwrap();
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&got), bits(&exact));
+        assert!(got.iter().filter(|v| **v > 0.0).count() > 14_000);
+        // Row 4200 beyond θmax, row 4300 zero: the domain error of the earlier row, in
+        // whichever chunk; with outside-domain-zero, a 0 there and the zero row's error.
+        let mut bad = wi.clone();
+        bad[3 * 4200..3 * 4200 + 3].copy_from_slice(&[1.0, 0.0, 0.1]);
+        bad[3 * 4300..3 * 4300 + 3].fill(0.0);
+        let err = e
+            .eval_arrays(&bad, &wo, EvalOptions::default(), &mut got)
+            .unwrap_err()
+            .to_string();
+        assert!(err.starts_with("row 4200: pair (["), "{err}");
+        assert!(err.contains("outside the stored domain θ ≤ 60°"), "{err}");
+        let zero = EvalOptions {
+            outside_domain_zero: true,
+            ..Default::default()
+        };
+        let err = e.eval_arrays(&bad, &wo, zero, &mut got).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "row 4300: wi has zero length (expected a direction)"
+        );
+        bad[3 * 4300..3 * 4300 + 3].copy_from_slice(&[0.0, 0.0, 1.0]);
+        e.eval_arrays(&bad, &wo, zero, &mut got).unwrap();
+        e.eval_arrays(
+            &bad,
+            &wo,
+            EvalOptions {
+                exact: true,
+                ..zero
+            },
+            &mut exact,
+        )
+        .unwrap();
+        assert_eq!(bits(&got), bits(&exact));
+        assert_eq!(got[3 * 4200..3 * 4200 + 3], [0.0; 3]);
     }
 
     #[test]

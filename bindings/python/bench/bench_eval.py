@@ -13,14 +13,21 @@ the ratio of the medians (Python / Rust throughput).
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
 import time
 
-import numpy as np
+# NumPy's OpenBLAS starts a thread per core at import, whose busy-waiting took 1-3% of the
+# samples of `eval` loops in perf (docs/benchmarks.md), although nothing here calls BLAS
+# (`eval` is brdfpack's own lookup): one BLAS thread, set before NumPy is imported, so that
+# the Python side is not charged for threads it does not use. A caller's setting is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import brdfpack
+import numpy as np  # noqa: E402
+
+import brdfpack  # noqa: E402
 
 # src/bench.rs PEER_GGX.
 PEER_GGX = (
@@ -72,11 +79,12 @@ def main():
     wi, wo = brdfpack.sample_pairs(a.pairs, kind="uniform", seed=1)
     rows = []
     for r in range(a.rounds):
+        load = os.getloadavg()[0]  # the other processes' share of the machine, as printed
         rust = rust_lookup(a.bin, a.pairs, a.runs)
         py = python_eval(table, wi, wo, a.runs)
         fresh = python_eval(table, wi, wo, a.runs, reuse=False)
         exact = python_eval(table, wi, wo, max(1, a.runs // 3), exact=True) if a.exact else None
-        rows.append((rust, py, exact, fresh))
+        rows.append((rust, py, exact, fresh, load))
         print(
             f"round {r + 1}: rust {rust * 1e3:.1f} ms, python {py * 1e3:.1f} ms "
             f"(new array each call {fresh * 1e3:.1f} ms), ratio {rust / py:.3f}",
@@ -84,23 +92,23 @@ def main():
         )
     print(
         "| round | Rust `eval_batch` (ms) | Python `Table.eval(out=)` (ms) | ratio (Python/Rust "
-        "throughput) | Python `Table.eval` new array (ms) | ratio |"
+        "throughput) | Python `Table.eval` new array (ms) | ratio | load average (1 min) |"
     )
-    print("|---|---|---|---|---|---|")
-    for k, (rust, py, _, fresh) in enumerate(rows):
+    print("|---|---|---|---|---|---|---|")
+    for k, (rust, py, _, fresh, load) in enumerate(rows):
         print(
             f"| {k + 1} | {rust * 1e3:.1f} | {py * 1e3:.1f} | {rust / py:.3f} | "
-            f"{fresh * 1e3:.1f} | {rust / fresh:.3f} |"
+            f"{fresh * 1e3:.1f} | {rust / fresh:.3f} | {load:.2f} |"
         )
-    ratio = statistics.median(rust / py for rust, py, _, _ in rows)
-    fresh_ratio = statistics.median(rust / f for rust, _, _, f in rows)
+    ratio = statistics.median(rust / py for rust, py, _, _, _ in rows)
+    fresh_ratio = statistics.median(rust / f for rust, _, _, f, _ in rows)
     print(
         f"\nmedian ratio over {a.rounds} rounds: {ratio:.3f} into `out=`, {fresh_ratio:.3f} "
         f"with a new array per call ({a.pairs} pairs, {a.runs} runs each)"
     )
     if a.exact:
-        ex = statistics.median(e for _, _, e, _ in rows)
-        rust = statistics.median(r for r, _, _, _ in rows)
+        ex = statistics.median(e for _, _, e, _, _ in rows)
+        rust = statistics.median(r for r, _, _, _, _ in rows)
         print(f"eval(exact=True): median {ex * 1e3:.1f} ms, ratio {rust / ex:.3f}")
     if a.min_ratio is not None and ratio < a.min_ratio:
         print(f"ratio {ratio:.3f} below {a.min_ratio}", file=sys.stderr)
