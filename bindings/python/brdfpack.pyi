@@ -67,7 +67,8 @@ class Table:
     @property
     def grid_desc(self) -> dict[str, Any]:
         """The grid as file headers store it: {"kind", "axes": [{"quantity", "n", "warp",
-        "placement"}], "theta_max_deg"?}."""
+        "placement"}], "theta_max_deg"?, "interp_weight"? ("cosine"), "interp_space"?
+        ({"log": {"scale": s}}: values combined as asinh(v/s), docs/parameterizations.md)}."""
     @property
     def axes(self) -> list[dict[str, Any]]:
         """Per axis in storage order: "quantity", "n", "warp", "placement", "range" (lo, hi

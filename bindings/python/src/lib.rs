@@ -327,7 +327,7 @@ impl Table {
     }
 
     /// The grid as stored in file headers: {"kind", "axes": [{"quantity", "n", "warp",
-    /// "placement"}], "theta_max_deg"?}.
+    /// "placement"}], "theta_max_deg"?, "interp_weight"?, "interp_space"?}.
     #[getter]
     fn grid_desc<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_to_py(py, &self.table().grid().desc())
