@@ -169,18 +169,24 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         // share of the budget; the other stencils cost a fraction of a tabulation.
         let mut spec = spec;
         if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
+            // The table's grid as it now interpolates, measured; kept when its own error uses
+            // less of the budget than the best so far.
+            let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
+                let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
+                let f = e.measure(table.data());
+                let better =
+                    floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
+                if better {
+                    (*est, *floor) = (e, f);
+                }
+                Ok::<bool, Error>(better)
+            };
             let plain = table.grid().weight();
-            let other = match plain {
+            table.set_interp_weight(match plain {
                 InterpWeight::None => InterpWeight::Cosine,
                 InterpWeight::Cosine => InterpWeight::None,
-            };
-            table.set_interp_weight(other);
-            let est_w = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
-            let floor_w = est_w.measure(table.data());
-            if floor_share(&settings.budget, &floor_w) < floor_share(&settings.budget, &floor) {
-                (est, floor) = (est_w, floor_w);
-                spec = table.grid().describe();
-            } else {
+            });
+            if !closer(&table, &mut est, &mut floor)? {
                 table.set_interp_weight(plain);
             }
             // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
@@ -189,15 +195,12 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             let mut kept = table.grid().space();
             for log in log_spaces_of(&table, &est) {
                 table.set_interp_space(log);
-                let est_l = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
-                let floor_l = est_l.measure(table.data());
-                if floor_share(&settings.budget, &floor_l) < floor_share(&settings.budget, &floor) {
-                    (est, floor) = (est_l, floor_l);
-                    spec = table.grid().describe();
+                if closer(&table, &mut est, &mut floor)? {
                     kept = log;
                 }
             }
             table.set_interp_space(kept);
+            spec = table.grid().describe();
         }
         timings.push((
             format!("stencils and grid error {spec}"),
