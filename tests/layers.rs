@@ -363,6 +363,44 @@ fn src_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
 }
 
+/// The modules declared `#[cfg(test)] mod name;` in `code` (of module `parent`): files that
+/// are test code as a whole, like a `#[cfg(test)] mod tests { .. }` block.
+fn test_only_children(code: &[u8], parent: &str) -> Vec<String> {
+    let pat = b"#[cfg(test)]";
+    let mut out = Vec::new();
+    let skip_ws = |mut i: usize| {
+        while i < code.len() && code[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        i
+    };
+    for start in 0..code.len().saturating_sub(pat.len()) {
+        if &code[start..start + pat.len()] != pat {
+            continue;
+        }
+        let i = skip_ws(start + pat.len());
+        if !code[i..].starts_with(b"mod")
+            || code.get(i + 3).is_none_or(|c| !c.is_ascii_whitespace())
+        {
+            continue;
+        }
+        let i = skip_ws(i + 3);
+        let mut j = i;
+        while j < code.len() && is_ident(code[j]) {
+            j += 1;
+        }
+        if j > i && code.get(skip_ws(j)) == Some(&b';') {
+            let child = String::from_utf8_lossy(&code[i..j]).into_owned();
+            // The binary's root declares crate-level modules of its own.
+            out.push(match parent {
+                "" | "main" => child,
+                p => format!("{p}::{child}"),
+            });
+        }
+    }
+    out
+}
+
 /// Every use of a layer above the user's: "file:line: module (layer) uses path (layer)".
 fn back_edges() -> (Vec<String>, Vec<(String, String)>) {
     let src = src_dir();
@@ -370,9 +408,21 @@ fn back_edges() -> (Vec<String>, Vec<(String, String)>) {
     rust_files(&src, &mut files);
     let mut report = Vec::new();
     let mut edges = Vec::new();
+    let mut test_only = Vec::new();
+    for f in &files {
+        let module = module_of(f.strip_prefix(&src).unwrap());
+        let code = code_only(&std::fs::read_to_string(f).unwrap());
+        test_only.extend(test_only_children(&code, &module));
+    }
     for f in &files {
         let rel = f.strip_prefix(&src).unwrap();
         let module = module_of(rel);
+        if test_only
+            .iter()
+            .any(|t| module == *t || module.starts_with(&format!("{t}::")))
+        {
+            continue;
+        }
         let text = std::fs::read_to_string(f).unwrap();
         let mut code = code_only(&text);
         without_test_items(&mut code);
@@ -554,5 +604,8 @@ fn the_path_reader_reads_what_it_should() {
     assert_eq!(name(layer_of("codec::simd::avx2").unwrap()), "codec");
     assert_eq!(layer_of("main"), layer_of("cli::common"));
     assert_eq!(module_of(Path::new("a/mod.rs")), "a");
+    let decls = code_only("#[cfg(test)]\nmod tests;\nmod planes;\n#[cfg(test)] mod x { }\n");
+    assert_eq!(test_only_children(&decls, "codec"), ["codec::tests"]);
+    assert_eq!(test_only_children(&decls, ""), ["tests"]);
     assert_eq!(module_of(Path::new("a/b.rs")), "a::b");
 }
