@@ -1628,39 +1628,47 @@ unsafe fn prepare3_avx2(t: &[[f64; 4]], nearest: bool, layout: &Layout, st: &mut
     prepare3(t, nearest, layout, st)
 }
 
-/// A table with an interpolation mode: a [`Brdf`] like any other.
+/// A table with an interpolation mode: a [`Brdf`] like any other. Owned, or borrowed
+/// (`InterpolatedTable<&Table>`) where the table is large and its owner keeps it: the planner
+/// measuring against a stored table would otherwise hold a second copy of it.
 #[derive(Clone, Debug)]
-pub struct InterpolatedTable {
-    pub table: Table,
+pub struct InterpolatedTable<T = Table> {
+    pub table: T,
     pub interp: Interp,
 }
 
-impl Brdf for InterpolatedTable {
+impl<T: std::borrow::Borrow<Table> + Send + Sync> InterpolatedTable<T> {
+    fn t(&self) -> &Table {
+        self.table.borrow()
+    }
+}
+
+impl<T: std::borrow::Borrow<Table> + Send + Sync> Brdf for InterpolatedTable<T> {
     fn channels(&self) -> &Channels {
-        self.table.channels()
+        self.t().channels()
     }
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
-        self.table.eval_into(wi, wo, self.interp, out);
+        self.t().eval_into(wi, wo, self.interp, out);
     }
     fn is_isotropic(&self) -> bool {
-        self.table.grid().kind().is_isotropic()
+        self.t().grid().kind().is_isotropic()
     }
     fn is_reciprocal(&self) -> bool {
         // A folded half/difference table is reciprocal by construction; other grids store
         // whatever their source was, which the table does not promise.
-        self.table.grid().kind() == crate::grid::GridKind::Halfdiff3
+        self.t().grid().kind() == crate::grid::GridKind::Halfdiff3
     }
     fn in_domain(&self, wi: Vec3, wo: Vec3) -> bool {
-        self.table.grid().theta_max().is_none() || self.table.grid().in_domain(wi, wo)
+        self.t().grid().theta_max().is_none() || self.t().grid().in_domain(wi, wo)
     }
     fn theta_max_deg(&self) -> Option<f64> {
-        self.table.grid().theta_max_deg()
+        self.t().grid().theta_max_deg()
     }
     fn describe(&self) -> String {
         format!(
             "table {} of {}",
-            self.table.grid().describe(),
-            self.table.provenance().source
+            self.t().grid().describe(),
+            self.t().provenance().source
         )
     }
 }

@@ -343,3 +343,49 @@ fn a_truncated_residual_file_is_a_clear_error() {
         .stderr(predicates::str::contains("cut.bpk"))
         .stderr(predicates::str::contains("panicked").not());
 }
+
+/// A table carrying exact f64 values (as read from a MERL `.binary`): `compress --max-error`
+/// plans on its f32 samples without holding the f64 values, and when the budget takes the
+/// lossless codec the written file still carries them, read again from the input; a lossy
+/// file never does.
+#[test]
+fn a_budget_met_losslessly_keeps_the_exact_values_and_a_lossy_one_drops_them() {
+    use brdfpack::table::ExactValues;
+    let dir = tempfile::tempdir().unwrap();
+    let g = parse_grid_spec("halfdiff3:16x16x24").unwrap();
+    let t = tabulate(&testdata::GgxConductor::new(0.3), &g, &Default::default()).unwrap();
+    // Numbers that f32 does not hold: 1 + 1e-10 relative off the samples.
+    let raw: Vec<f64> = t.data().iter().map(|&v| v as f64 * (1.0 + 1e-10)).collect();
+    assert!(raw.iter().zip(t.data()).any(|(r, &v)| *r != v as f64));
+    let exact = ExactValues {
+        scale: vec![1.0; 3],
+        raw: raw.clone(),
+    };
+    let t = t.with_exact(exact.clone()).unwrap();
+    let input = dir.path().join("exact.bpk");
+    let lossless = CodecSpec::default();
+    assert!(lossless.is_lossless());
+    std::fs::write(&input, native::to_bytes(&t, &lossless).unwrap()).unwrap();
+    for (budget, keeps) in [
+        ("log_rmse=1e-12,p99_rel_core=1e-12", true),
+        ("log_rmse=0.01,p99_rel_core=0.2", false),
+    ] {
+        let out = dir.path().join("out.bpk");
+        Command::cargo_bin("brdfpack")
+            .unwrap()
+            .arg("compress")
+            .arg(&input)
+            .arg("-o")
+            .arg(&out)
+            .args(["--max-error", budget, "--samples", "4096"])
+            .assert()
+            .success();
+        let back = native::from_bytes(&std::fs::read(&out).unwrap(), &out).unwrap();
+        if keeps {
+            assert_eq!(back.exact(), Some(&exact), "{budget}");
+            assert_eq!(back.data(), t.data(), "{budget}");
+        } else {
+            assert!(back.exact().is_none(), "{budget}");
+        }
+    }
+}

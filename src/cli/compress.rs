@@ -17,6 +17,7 @@ use crate::table::Table;
 use crate::tabulate::tabulate;
 use clap::Args;
 use serde_json::json;
+use std::borrow::Cow;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -162,6 +163,37 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
     report(&a, &r, &machine)
 }
 
+/// The input table read again, with its exact f64 values, after a plan on its samples chose
+/// the lossless codec; refused when the file no longer holds the samples that were planned.
+fn exact_again(
+    a: &CompressArgs,
+    symmetry: &SamplingArgs,
+    reads: &mut ReadSet,
+    planned: &Table,
+) -> anyhow::Result<Table> {
+    let again = match symmetry.apply(Source::open_recording(&a.input, reads)?) {
+        Source::Table(t) => Some(t),
+        _ => None,
+    };
+    let same = again.as_ref().is_some_and(|again| {
+        again.data().len() == planned.data().len()
+            && again
+                .data()
+                .iter()
+                .zip(planned.data())
+                .all(|(x, y)| x.to_bits() == y.to_bits())
+            && again.valid() == planned.valid()
+    });
+    let (true, Some(again)) = (same, again) else {
+        return Err(Error::Failure(format!(
+            "{}: the file changed while it was being compressed; no file written",
+            a.input
+        ))
+        .into());
+    };
+    Ok(again)
+}
+
 /// `--max-error`: the smallest file whose error against the input (a table against itself,
 /// a model or measured file against the source) meets the budget ([`crate::plan::pack`]).
 fn run_budget(
@@ -190,7 +222,22 @@ fn run_budget(
                 ))
                 .into());
             }
-            plan(PackInput::Table(&t), &settings, &progress)
+            // A regular file's exact f64 values (a MERL file's: twice its f32 samples) are not
+            // held while planning, which reads only the samples: they are read again from the
+            // file when the lossless codec is chosen (a pipe or device is read once, so its
+            // table keeps them).
+            let reread = t.exact().is_some()
+                && std::fs::metadata(&a.input).is_ok_and(|m| m.is_file())
+                && a.input != "-";
+            let t = if reread { t.without_exact() } else { t };
+            let mut planned = plan(PackInput::Table(Cow::Owned(t)), &settings, &progress);
+            if let Ok(p) = &mut planned
+                && reread
+                && p.encoded.spec.is_lossless()
+            {
+                p.table = exact_again(a, symmetry, &mut reads, &p.table)?;
+            }
+            planned
         }
         other => {
             let src = scene.restrict_source(other.into_brdf(Lookup::Linear)?)?;
@@ -213,7 +260,7 @@ fn run_budget(
     // the read-back and the check, they do not add to the peak.
     crate::memory::release_free_memory();
     let e = &planned.encoded;
-    let bytes = native::to_bytes(&planned.table, &e.spec)?;
+    let bytes = native::to_bytes_with_payload(&planned.table, &e.spec, e.payload.clone())?;
     atomic::write_output(&a.output, &bytes)?;
     a.depfile.write(&[a.output.as_path()], &reads)?;
     let raw = planned.table.data().len() * 4;

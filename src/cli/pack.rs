@@ -197,7 +197,11 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             // The planner's estimation sets, stencils and coefficients are freed: handed back before
             // the read-back and the check, they do not add to the peak.
             crate::memory::release_free_memory();
-            let bytes = native::to_bytes(&planned.table, &planned.encoded.spec)?;
+            let bytes = native::to_bytes_with_payload(
+                &planned.table,
+                &planned.encoded.spec,
+                planned.encoded.payload.clone(),
+            )?;
             Packed {
                 codec: planned.encoded.spec.clone(),
                 bytes,

@@ -8,8 +8,31 @@ use super::*;
 /// filled first). Exposed so the search can quantize one transform at many steps.
 pub fn dct_coefficients(table: &Table, transform: &Transform) -> Result<Vec<Vec<f64>>> {
     let dims = table.grid().shape();
-    let planes = filled_planes(table, transform);
-    Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
+    // One plane at a time: its coefficients replace it (the planes of every component at
+    // once were another 2× the f32 table of f64 beside the coefficients).
+    Ok((0..table.channels().len())
+        .map(|k| dct::forward_owned(filled_plane(table, transform, k), &dims))
+        .collect())
+}
+
+/// Plane `k` of [`filled_planes`], the same bits, made alone: the invalid cells of each
+/// plane are filled from that plane only.
+pub fn filled_plane(table: &Table, transform: &Transform, k: usize) -> Vec<f64> {
+    let dims = table.grid().shape();
+    let c = table.channels().len();
+    let mut plane = vec![0.0; table.grid().cells()];
+    transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
+        plane[f] = z[k];
+    });
+    let mut planes = [plane];
+    domain::fill_invalid(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &fill_order(table.grid().kind()),
+    );
+    let [plane] = planes;
+    plane
 }
 
 /// The transformed component planes with the invalid cells filled ([`domain::fill_invalid`]):

@@ -67,6 +67,13 @@ pub enum MaskKind {
 
 /// Encodes a table into the native format's bytes.
 pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
+    to_bytes_with_payload(table, codec, codec.encode(table)?)
+}
+
+/// The native file of `table` with its `DATA` section already encoded by `codec` (the
+/// planner's measured candidate: the file written is the one whose error was measured, and
+/// the table is not encoded a second time).
+pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: Vec<u8>) -> Result<Vec<u8>> {
     // Exact f64 values describe the f32 samples bit for bit; a lossy codec changes those
     // samples, so the exact values cannot travel with it (they would contradict the data).
     let exact = table.exact().filter(|_| codec.is_lossless());
@@ -89,7 +96,6 @@ pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
     // Compact: the header is a third of a preview-budget file; readers take any JSON.
     let head = serde_json::to_vec(&header)
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
-    let data = codec.encode(table)?;
     let mut sections: Vec<([u8; 4], Vec<u8>)> = vec![(*b"HEAD", head), (*b"DATA", data)];
     if mask == MaskKind::Explicit {
         let mut bits = vec![0u8; table.valid().len().div_ceil(8)];

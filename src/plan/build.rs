@@ -403,8 +403,9 @@ fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> 
                 },
                 &|_| {},
             )?;
-            let spec = planned.encoded.spec.clone();
-            (planned.table, Some(spec))
+            // The measured candidate's own bytes are written, as `pack` writes them.
+            let encoded = planned.encoded;
+            (planned.table, Some((encoded.spec, encoded.payload)))
         }
         None => {
             let grid = match grid {
@@ -416,9 +417,18 @@ fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> 
     };
     let mut out = Vec::new();
     for path in &m.outputs {
+        if let (Some(FormatName::Native), Some((spec, payload))) =
+            (FormatName::from_path(path), &native)
+        {
+            out.push((
+                path.clone(),
+                crate::io::native::to_bytes_with_payload(&table, spec, payload.clone())?,
+            ));
+            continue;
+        }
         let format = match FormatName::from_path(path) {
             Some(FormatName::Native) => OutputFormat::Native(match &native {
-                Some(spec) => spec.clone(),
+                Some((spec, _)) => spec.clone(),
                 None => CodecRequest::parse(m.codec.as_deref().unwrap_or("lossless"))?
                     .resolve(&table)?,
             }),

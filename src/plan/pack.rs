@@ -19,9 +19,12 @@ use crate::table::Table;
 use crate::tabulate::{TabulateOptions, tabulate};
 use crate::{Error, Result};
 use serde::Serialize;
+use std::borrow::Cow;
 use std::time::Instant;
 
 /// What to pack.
+// One value per plan, moved once: the owned table's inline size costs nothing.
+#[allow(clippy::large_enum_variant)]
 pub enum PackInput<'a> {
     /// A source to tabulate: on `grid` when given, else on its default grid (finer ones when
     /// that grid cannot meet the budget).
@@ -31,8 +34,10 @@ pub enum PackInput<'a> {
         options: TabulateOptions,
     },
     /// A table that is its own source (`compress` of a stored table): its grid, and its error
-    /// measured against its own linear interpolation.
-    Table(&'a Table),
+    /// measured against its own linear interpolation. Given owned, it becomes the planned
+    /// table without a copy; borrowed, it is copied once, after the planning (the planner
+    /// never holds a second copy of a stored table beside its coefficients and trials).
+    Table(Cow<'a, Table>),
 }
 
 /// The planner's settings.
@@ -83,9 +88,10 @@ const MAX_REFINEMENTS: usize = 3;
 const MAX_REFINED_CELLS: usize = 6_000_000;
 
 /// A grid with its table and estimator, and the table's own error.
-struct Tabulated {
+struct Tabulated<'a> {
     spec: String,
-    table: Table,
+    /// The input itself for a stored table (borrowed), else a tabulation.
+    table: Cow<'a, Table>,
     est: ErrorEstimator,
     floor: Estimate,
     tabulate_s: f64,
@@ -98,10 +104,10 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     let interpolated;
     let (source, start, refine): (&dyn Brdf, Option<Grid>, bool) = match &input {
         PackInput::Table(t) => {
-            // The reference is looked up from the f32 samples: the exact f64 values (35 MB
-            // on a MERL file) stay with the caller's table.
+            // The reference is looked up from the input's f32 samples (its exact f64 values,
+            // when it has them, are not read), borrowed.
             interpolated = crate::table::InterpolatedTable {
-                table: t.clone_samples(),
+                table: &**t,
                 interp: crate::table::Interp::Linear,
             };
             (&interpolated, None, false)
@@ -144,78 +150,79 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     // the domain.
     let for_samples = check.len().max(1);
     timings.push(("reference values".to_string(), t.elapsed().as_secs_f64()));
-    let prepare = |grid: Option<&Grid>, timings: &mut Vec<(String, f64)>| -> Result<Tabulated> {
-        let t = Instant::now();
-        let (spec, table) = match (&input, grid) {
-            (PackInput::Source { options, .. }, Some(g)) => {
-                progress(&format!("tabulating on {}", g.describe()));
-                (g.describe(), tabulate(source, g, options)?)
-            }
-            // The encoder reads the f32 samples; a lossless result takes the exact values
-            // back from the input at the end.
-            (PackInput::Table(t), _) => (t.grid().describe(), t.clone_samples()),
-            (PackInput::Source { .. }, None) => unreachable!("a source always has a grid"),
-        };
-        let tabulate_s = t.elapsed().as_secs_f64();
-        timings.push((format!("tabulate {spec}"), tabulate_s));
-        let t = Instant::now();
-        progress(&format!("interpolation stencils on {spec}"));
-        let mut table = table;
-        let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
-        let mut floor = est.measure(table.data());
-        // What is interpolated between the samples is measured too, when the planner owns
-        // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
-        // horizon is smooth only in the latter). Tried when the grid's own error is a real
-        // share of the budget; the other stencils cost a fraction of a tabulation.
-        let mut spec = spec;
-        if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
-            // The table's grid as it now interpolates, measured; kept when its own error uses
-            // less of the budget than the best so far.
-            let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
-                let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
-                let f = e.measure(table.data());
-                let better =
-                    floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
-                if better {
-                    (*est, *floor) = (e, f);
+    let prepare =
+        |grid: Option<&Grid>, timings: &mut Vec<(String, f64)>| -> Result<Tabulated<'_>> {
+            let t = Instant::now();
+            let (spec, table) = match (&input, grid) {
+                (PackInput::Source { options, .. }, Some(g)) => {
+                    progress(&format!("tabulating on {}", g.describe()));
+                    (g.describe(), Cow::Owned(tabulate(source, g, options)?))
                 }
-                Ok::<bool, Error>(better)
+                // The encoder reads the f32 samples of the input itself.
+                (PackInput::Table(t), _) => (t.grid().describe(), Cow::Borrowed(&**t)),
+                (PackInput::Source { .. }, None) => unreachable!("a source always has a grid"),
             };
-            let plain = table.grid().weight();
-            table.set_interp_weight(match plain {
-                InterpWeight::None => InterpWeight::Cosine,
-                InterpWeight::Cosine => InterpWeight::None,
-            });
-            if !closer(&table, &mut est, &mut floor)? {
-                table.set_interp_weight(plain);
-            }
-            // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
-            // flanks fall by decades between samples, which linear interpolation
-            // overestimates and a geometric mean follows.
-            let mut kept = table.grid().space();
-            for log in log_spaces_of(&table, &est) {
-                table.set_interp_space(log);
-                if closer(&table, &mut est, &mut floor)? {
-                    kept = log;
+            let tabulate_s = t.elapsed().as_secs_f64();
+            timings.push((format!("tabulate {spec}"), tabulate_s));
+            let t = Instant::now();
+            progress(&format!("interpolation stencils on {spec}"));
+            let mut table = table;
+            let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
+            let mut floor = est.measure(table.data());
+            // What is interpolated between the samples is measured too, when the planner owns
+            // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
+            // horizon is smooth only in the latter). Tried when the grid's own error is a real
+            // share of the budget; the other stencils cost a fraction of a tabulation.
+            let mut spec = spec;
+            if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
+                // The table's grid as it now interpolates, measured; kept when its own error uses
+                // less of the budget than the best so far.
+                let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
+                    let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
+                    let f = e.measure(table.data());
+                    let better =
+                        floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
+                    if better {
+                        (*est, *floor) = (e, f);
+                    }
+                    Ok::<bool, Error>(better)
+                };
+                let table = table.to_mut();
+                let plain = table.grid().weight();
+                table.set_interp_weight(match plain {
+                    InterpWeight::None => InterpWeight::Cosine,
+                    InterpWeight::Cosine => InterpWeight::None,
+                });
+                if !closer(table, &mut est, &mut floor)? {
+                    table.set_interp_weight(plain);
                 }
+                // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
+                // flanks fall by decades between samples, which linear interpolation
+                // overestimates and a geometric mean follows.
+                let mut kept = table.grid().space();
+                for log in log_spaces_of(table, &est) {
+                    table.set_interp_space(log);
+                    if closer(table, &mut est, &mut floor)? {
+                        kept = log;
+                    }
+                }
+                table.set_interp_space(kept);
+                spec = table.grid().describe();
             }
-            table.set_interp_space(kept);
-            spec = table.grid().describe();
-        }
-        timings.push((
-            format!("stencils and grid error {spec}"),
-            t.elapsed().as_secs_f64(),
-        ));
-        Ok(Tabulated {
-            spec,
-            table,
-            est,
-            floor,
-            tabulate_s,
-        })
-    };
+            timings.push((
+                format!("stencils and grid error {spec}"),
+                t.elapsed().as_secs_f64(),
+            ));
+            Ok(Tabulated {
+                spec,
+                table,
+                est,
+                floor,
+                tabulate_s,
+            })
+        };
     let mut attempts: Vec<GridAttempt> = Vec::new();
-    let mut best: Option<(usize, Table, String, Encoded, f64, f64)> = None;
+    let mut best: Option<(usize, Cow<'_, Table>, String, Encoded, f64, f64)> = None;
     let mut current = prepare(start.as_ref(), &mut timings)?;
     let mut refinements = 0;
     let mut tight_tried = false;
@@ -341,16 +348,30 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         current = cand;
         refinements += 1;
     }
-    let Some((k, mut table, grid, encoded, tabulate_s, encode_s)) = best else {
+    let Some((k, table, grid, encoded, tabulate_s, encode_s)) = best else {
         return Err(Error::Failure(no_grid_message(&settings.budget, &attempts)));
     };
-    // A lossless file carries the input's exact f64 values, as `compress --codec` writes it.
-    if let PackInput::Table(t) = &input
-        && encoded.spec.is_lossless()
-        && let Some(exact) = t.exact()
-    {
-        table = table.with_exact(exact.clone())?;
-    }
+    // The planned table: a tabulation, or the input itself (moved when owned). A lossless
+    // file carries the input's exact f64 values, as `compress --codec` writes it; a lossy one
+    // does not.
+    let tabulated = match table {
+        Cow::Owned(t) => Some(t),
+        Cow::Borrowed(_) => None,
+    };
+    let table = match (tabulated, input) {
+        (Some(t), _) => t,
+        (None, PackInput::Table(t)) => {
+            let t = t.into_owned();
+            if encoded.spec.is_lossless() {
+                t
+            } else {
+                t.without_exact()
+            }
+        }
+        (None, PackInput::Source { .. }) => {
+            unreachable!("a source's tables are its tabulations")
+        }
+    };
     attempts[k].chosen = true;
     Ok(Planned {
         table,

@@ -29,7 +29,7 @@ use crate::codec::coefcode::{self, ContextCoding, DEFAULT_DEADZONE};
 use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
-    CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_planes,
+    CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
     transform_with_curve,
 };
 use crate::table::Table;
@@ -218,12 +218,11 @@ pub fn encode_within(
         // so a code differs from the f64 coefficient's only where the f32 rounding (a relative
         // 6e-8) crosses a rounding or dead-zone boundary. The largest magnitude, which sets
         // the bisection's range of steps, is taken from the f64 values. Each plane is
-        // transformed in its own array and narrowed as soon as it is done.
+        // made, transformed in its own array and narrowed one at a time.
         let mut max_coef = 0.0f64;
-        let coefs: Vec<Vec<f32>> = filled_planes(table, &transform)
-            .into_iter()
-            .map(|p| {
-                let f = dct::forward_owned(p, &dims);
+        let coefs: Vec<Vec<f32>> = (0..c)
+            .map(|k| {
+                let f = dct::forward_owned(filled_plane(table, &transform, k), &dims);
                 max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs()));
                 f.iter().map(|&c| c as f32).collect()
             })
@@ -613,6 +612,38 @@ mod tests {
     use crate::tabulate::tabulate;
 
     #[test]
+    fn a_plane_made_alone_has_the_bits_of_all_planes_at_once() {
+        // The rate control and `dct_coefficients` make one component plane at a time; the
+        // colour transform mixes the channels and the fill reads the validity mask, so the
+        // plane made alone must still be the same numbers.
+        let m = Model::parse("lambert:albedo=0.2/0.4/0.05+ggx:alpha=0.1,fresnel=cu").unwrap();
+        let g = parse_grid_spec("halfdiff3:12x10x16").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        assert!(t.valid().iter().any(|v| !v), "the grid has cells to fill");
+        let tr = transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
+        assert!(
+            tr.colour.is_some(),
+            "the colour transform mixes the channels"
+        );
+        let all = crate::codec::filled_planes(&t, &tr);
+        let coefs = crate::codec::dct_coefficients(&t, &tr).unwrap();
+        for (k, p) in all.iter().enumerate() {
+            let alone = filled_plane(&t, &tr, k);
+            assert!(
+                p.iter()
+                    .zip(&alone)
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+            );
+            let f = dct::forward(p, &g.shape());
+            assert!(
+                f.iter()
+                    .zip(&coefs[k])
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+            );
+        }
+    }
+
+    #[test]
     fn the_predicted_mse_is_the_decoded_mse() {
         // Parseval: D(s) from the coefficients equals the mean squared error of the decoded
         // planes in the curve's space over all cells (the fill included).
@@ -621,7 +652,7 @@ mod tests {
         let t = tabulate(&m, &g, &Default::default()).unwrap();
         let tr = transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
         let dims = g.shape();
-        let planes = filled_planes(&t, &tr);
+        let planes = crate::codec::filled_planes(&t, &tr);
         let coefs: Vec<Vec<f32>> = planes
             .iter()
             .map(|p| dct::forward(p, &dims).iter().map(|&c| c as f32).collect())

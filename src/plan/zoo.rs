@@ -177,7 +177,11 @@ pub fn run_one(
         }
         Err(e) => return Err(e),
     };
-    let bytes = native::to_bytes(&planned.table, &planned.encoded.spec)?;
+    let bytes = native::to_bytes_with_payload(
+        &planned.table,
+        &planned.encoded.spec,
+        planned.encoded.payload.clone(),
+    )?;
     let back = native::from_bytes(&bytes, std::path::Path::new("zoo.bpk"))?;
     let cand = InterpolatedTable {
         table: back,

@@ -20,6 +20,7 @@ use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList};
+use std::borrow::Cow;
 use std::path::Path;
 
 pyo3::create_exception!(
@@ -656,21 +657,17 @@ fn compress(
                         check_samples: samples,
                         check_seed: seed,
                     };
-                    let input_table;
                     let opened;
                     let input = match &source {
                         SourceArg::Spec(s) => match CoreSource::open(s)? {
-                            CoreSource::Table(t) => {
-                                input_table = t;
-                                PackInput::Table(&input_table)
-                            }
+                            CoreSource::Table(t) => PackInput::Table(Cow::Owned(t)),
                             other => {
                                 opened = other.into_brdf(Lookup::Linear)?;
                                 source_input(opened.as_ref(), grid)?
                             }
                         },
                         SourceArg::Object(e) => match e.table() {
-                            Some(t) => PackInput::Table(t),
+                            Some(t) => PackInput::Table(Cow::Borrowed(t)),
                             None => source_input(e.brdf(), grid)?,
                         },
                     };
@@ -678,7 +675,11 @@ fn compress(
                         return Err(already_a_table(g));
                     }
                     let planned = plan(input, &settings, &|_| {})?;
-                    let bytes = native::to_bytes(&planned.table, &planned.encoded.spec)?;
+                    let bytes = native::to_bytes_with_payload(
+                        &planned.table,
+                        &planned.encoded.spec,
+                        planned.encoded.payload.clone(),
+                    )?;
                     let est = &planned.encoded.estimate;
                     let m = est.check.clone().unwrap_or_else(|| est.metrics.clone());
                     Ok((bytes, m))
