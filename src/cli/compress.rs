@@ -260,7 +260,7 @@ fn run_budget(
     // the read-back and the check, they do not add to the peak.
     crate::memory::release_free_memory();
     let e = &planned.encoded;
-    let bytes = native::to_bytes_with_payload(&planned.table, &e.spec, e.payload.clone())?;
+    let bytes = native::to_bytes_with_payload(&planned.table, &e.spec, &e.payload)?;
     atomic::write_output(&a.output, &bytes)?;
     a.depfile.write(&[a.output.as_path()], &reads)?;
     let raw = planned.table.data().len() * 4;

@@ -200,7 +200,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             let bytes = native::to_bytes_with_payload(
                 &planned.table,
                 &planned.encoded.spec,
-                planned.encoded.payload.clone(),
+                &planned.encoded.payload,
             )?;
             Packed {
                 codec: planned.encoded.spec.clone(),

@@ -21,6 +21,7 @@ use crate::io::ExactDesc;
 use crate::table::{ExactValues, Provenance, Table};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 use std::path::Path;
 
 pub const MAGIC: [u8; 8] = *b"\x89BPK\r\n\x1a\n";
@@ -67,13 +68,13 @@ pub enum MaskKind {
 
 /// Encodes a table into the native format's bytes.
 pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
-    to_bytes_with_payload(table, codec, codec.encode(table)?)
+    to_bytes_with_payload(table, codec, &codec.encode(table)?)
 }
 
 /// The native file of `table` with its `DATA` section already encoded by `codec` (the
 /// planner's measured candidate: the file written is the one whose error was measured, and
 /// the table is not encoded a second time).
-pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: Vec<u8>) -> Result<Vec<u8>> {
+pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: &[u8]) -> Result<Vec<u8>> {
     // Exact f64 values describe the f32 samples bit for bit; a lossy codec changes those
     // samples, so the exact values cannot travel with it (they would contradict the data).
     let exact = table.exact().filter(|_| codec.is_lossless());
@@ -96,7 +97,8 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: Vec<u8>) ->
     // Compact: the header is a third of a preview-budget file; readers take any JSON.
     let head = serde_json::to_vec(&header)
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
-    let mut sections: Vec<([u8; 4], Vec<u8>)> = vec![(*b"HEAD", head), (*b"DATA", data)];
+    let mut sections: Vec<([u8; 4], Cow<[u8]>)> =
+        vec![(*b"HEAD", head.into()), (*b"DATA", data.into())];
     if mask == MaskKind::Explicit {
         let mut bits = vec![0u8; table.valid().len().div_ceil(8)];
         for (i, &v) in table.valid().iter().enumerate() {
@@ -106,7 +108,7 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: Vec<u8>) ->
         }
         let z = zstd::bulk::compress(&bits, 19)
             .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
-        sections.push((*b"MASK", z));
+        sections.push((*b"MASK", z.into()));
     }
     let minor = match exact {
         Some(e) => {
@@ -116,12 +118,12 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: Vec<u8>) ->
             }
             let z = zstd::bulk::compress(&raw, EXACT_ZSTD_LEVEL)
                 .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
-            sections.push((*b"F64X", z));
+            sections.push((*b"F64X", z.into()));
             VERSION_MINOR_EXACT
         }
         None => VERSION_MINOR,
     };
-    sections.push((*b"END ", Vec::new()));
+    sections.push((*b"END ", Cow::Borrowed(&[])));
     let mut out = Vec::new();
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&VERSION_MAJOR.to_le_bytes());

@@ -417,24 +417,19 @@ fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> 
     };
     let mut out = Vec::new();
     for path in &m.outputs {
-        if let (Some(FormatName::Native), Some((spec, payload))) =
-            (FormatName::from_path(path), &native)
-        {
-            out.push((
-                path.clone(),
-                crate::io::native::to_bytes_with_payload(&table, spec, payload.clone())?,
-            ));
-            continue;
-        }
-        let format = match FormatName::from_path(path) {
-            Some(FormatName::Native) => OutputFormat::Native(match &native {
-                Some((spec, _)) => spec.clone(),
-                None => CodecRequest::parse(m.codec.as_deref().unwrap_or("lossless"))?
-                    .resolve(&table)?,
-            }),
-            Some(FormatName::Exr) => OutputFormat::Exr(Default::default()),
-            Some(FormatName::Merl) => OutputFormat::Merl,
-            Some(FormatName::Mbsdf) => OutputFormat::Mbsdf(Default::default()),
+        let format = match (FormatName::from_path(path), &native) {
+            // The planned candidate's own bytes, as `pack` writes them.
+            (Some(FormatName::Native), Some((spec, payload))) => {
+                let bytes = crate::io::native::to_bytes_with_payload(&table, spec, payload)?;
+                out.push((path.clone(), bytes));
+                continue;
+            }
+            (Some(FormatName::Native), None) => OutputFormat::Native(
+                CodecRequest::parse(m.codec.as_deref().unwrap_or("lossless"))?.resolve(&table)?,
+            ),
+            (Some(FormatName::Exr), _) => OutputFormat::Exr(Default::default()),
+            (Some(FormatName::Merl), _) => OutputFormat::Merl,
+            (Some(FormatName::Mbsdf), _) => OutputFormat::Mbsdf(Default::default()),
             _ => {
                 return Err(Error::input(format!(
                     "output {}: use .bpk, .exr, .binary or .mbsdf",

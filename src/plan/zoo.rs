@@ -180,7 +180,7 @@ pub fn run_one(
     let bytes = native::to_bytes_with_payload(
         &planned.table,
         &planned.encoded.spec,
-        planned.encoded.payload.clone(),
+        &planned.encoded.payload,
     )?;
     let back = native::from_bytes(&bytes, std::path::Path::new("zoo.bpk"))?;
     let cand = InterpolatedTable {

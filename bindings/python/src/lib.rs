@@ -678,7 +678,7 @@ fn compress(
                     let bytes = native::to_bytes_with_payload(
                         &planned.table,
                         &planned.encoded.spec,
-                        planned.encoded.payload.clone(),
+                        &planned.encoded.payload,
                     )?;
                     let est = &planned.encoded.estimate;
                     let m = est.check.clone().unwrap_or_else(|| est.metrics.clone());
