@@ -47,16 +47,20 @@ fn grazing_dir(rng: &mut SplitMix64) -> Vec3 {
 /// Half-angle of the cone around the mirror direction used by the `specular` set.
 pub const SPECULAR_CONE_DEG: f64 = 3.0;
 
+/// The pairs of [`SampleSet::uniform`] from `seed`, one at a time (the set's first n are its
+/// pairs): a holder of a set can draw one of them again instead of keeping them all.
+pub fn uniform_pairs(seed: u64) -> impl Iterator<Item = (Vec3, Vec3)> {
+    let mut rng = SplitMix64::new(seed);
+    std::iter::repeat_with(move || {
+        let wi = uniform_dir(&mut rng);
+        (wi, uniform_dir(&mut rng))
+    })
+}
+
 impl SampleSet {
     /// `uniform`: wi and wo independent and uniform in solid angle.
     pub fn uniform(n: usize, seed: u64) -> SampleSet {
-        let mut rng = SplitMix64::new(seed);
-        let pairs = (0..n)
-            .map(|_| {
-                let wi = uniform_dir(&mut rng);
-                (wi, uniform_dir(&mut rng))
-            })
-            .collect();
+        let pairs = uniform_pairs(seed).take(n).collect();
         SampleSet {
             name: "uniform".into(),
             seed: Some(seed),
@@ -280,34 +284,74 @@ pub fn evaluate_set(brdf: &dyn Brdf, set: &SampleSet) -> Vec<f64> {
 /// Computes the metrics of `g` against `f` over `set` (pair-major, `c` channels).
 /// `channel`: `Some(k)` for one channel, `None` for all pooled.
 pub fn metrics(set: &SampleSet, f: &[f64], g: &[f64], c: usize, channel: Option<usize>) -> Metrics {
+    metrics_of(set, f, g, c, channel)
+}
+
+/// What [`metrics_of`] reads of a set's pairs besides the values: a holder of many pairs
+/// (the planner's estimators) can keep these few numbers instead of the directions.
+pub trait MetricPairs {
+    /// Pairs in the set.
+    fn count(&self) -> usize;
+    /// Pair `p`'s weight (solid-angle measure); 1 for equal weights.
+    fn weight(&self, p: usize) -> f64;
+    /// cos θi of pair `p` (the log error's cosine).
+    fn cos_i(&self, p: usize) -> f64;
+    /// Whether pair `p` is in the core region ([`in_core`]).
+    fn core(&self, p: usize) -> bool;
+    /// Pair `p` itself: asked only for the pairs where the maxima are.
+    fn pair(&self, p: usize) -> (Vec3, Vec3);
+}
+
+impl MetricPairs for SampleSet {
+    fn count(&self) -> usize {
+        self.pairs.len()
+    }
+    fn weight(&self, p: usize) -> f64 {
+        self.weights.as_ref().map_or(1.0, |w| w[p])
+    }
+    fn cos_i(&self, p: usize) -> f64 {
+        self.pairs[p].0.z
+    }
+    fn core(&self, p: usize) -> bool {
+        let (wi, wo) = self.pairs[p];
+        in_core(wi, wo)
+    }
+    fn pair(&self, p: usize) -> (Vec3, Vec3) {
+        self.pairs[p]
+    }
+}
+
+/// [`metrics`] of any [`MetricPairs`]: the same numbers, summed in the same order.
+pub fn metrics_of(
+    set: &impl MetricPairs,
+    f: &[f64],
+    g: &[f64],
+    c: usize,
+    channel: Option<usize>,
+) -> Metrics {
     let chans: Vec<usize> = match channel {
         Some(k) => vec![k],
         None => (0..c).collect(),
     };
-    let weight = |p: usize| set.weights.as_ref().map_or(1.0, |w| w[p]);
+    let n = set.count();
     // ε = 1e-3 · mean |f| (weighted like the other means).
     let mut eps = EpsilonSum::default();
-    for p in 0..set.pairs.len() {
+    for p in 0..n {
         for &k in &chans {
-            eps.add(weight(p), f[p * c + k]);
+            eps.add(set.weight(p), f[p * c + k]);
         }
     }
     let eps = eps.epsilon();
-    let core_values = set
-        .pairs
-        .iter()
-        .filter(|&&(wi, wo)| in_core(wi, wo))
-        .count()
-        * chans.len();
+    let core_values = (0..n).filter(|&p| set.core(p)).count() * chans.len();
     let mut row = Row::new(eps, core_values);
-    for (p, &(wi, wo)) in set.pairs.iter().enumerate() {
-        let (w, core) = (weight(p), in_core(wi, wo));
+    for p in 0..n {
+        let (w, core, cos_i) = (set.weight(p), set.core(p), set.cos_i(p));
         for &k in &chans {
-            let t = Term::new(f[p * c + k], g[p * c + k], wi.z, eps, eps);
-            row.add(w, (wi, wo), core, &t, t.rel);
+            let t = Term::new(f[p * c + k], g[p * c + k], cos_i, eps, eps);
+            row.add(w, p, core, &t, t.rel);
         }
     }
-    row.finish()
+    row.finish(|p| set.pair(p))
 }
 
 /// The weighted sum of |f| that ε of the relative metrics is made of.
@@ -383,8 +427,11 @@ impl Term {
 /// One row of a report (all channels pooled, or one channel), fed value by value in the set's
 /// order: the weighted sums and maxima of the metrics, and the largest core relative errors,
 /// as many as the 99th percentile can need. Nothing else is held, however large the set.
-struct Row {
+struct Row<A: Copy> {
     m: Metrics,
+    /// Where `max_abs` and `max_rel` are (as the caller names a pair; `None` before any).
+    max_abs_at: Option<A>,
+    max_rel_at: Option<A>,
     se: f64,
     sre: f64,
     sle: f64,
@@ -398,14 +445,16 @@ struct Row {
 /// The quantile of `p99_rel_core`.
 const P99: f64 = 0.99;
 
-impl Row {
+impl<A: Copy> Row<A> {
     /// A row with ε `eps` that will see at most `core_values` values in the core region.
-    fn new(eps: f64, core_values: usize) -> Row {
+    fn new(eps: f64, core_values: usize) -> Row<A> {
         Row {
             m: Metrics {
                 epsilon: eps,
                 ..Default::default()
             },
+            max_abs_at: None,
+            max_rel_at: None,
             se: 0.0,
             sre: 0.0,
             sle: 0.0,
@@ -419,7 +468,7 @@ impl Row {
 
     /// One value of weight `w` at `pair`; `rel` is `t`'s relative error with this row's ε.
     #[inline]
-    fn add(&mut self, w: f64, pair: (Vec3, Vec3), core: bool, t: &Term, rel: f64) {
+    fn add(&mut self, w: f64, at: A, core: bool, t: &Term, rel: f64) {
         let m = &mut self.m;
         if !t.finite {
             m.nonfinite += 1;
@@ -435,17 +484,11 @@ impl Row {
         self.sw += w;
         if abs > m.max_abs {
             m.max_abs = abs;
-            m.max_abs_at = Pair {
-                wi: pair.0.to_array(),
-                wo: pair.1.to_array(),
-            };
+            self.max_abs_at = Some(at);
         }
         if rel > m.max_rel {
             m.max_rel = rel;
-            m.max_rel_at = Pair {
-                wi: pair.0.to_array(),
-                wo: pair.1.to_array(),
-            };
+            self.max_rel_at = Some(at);
         }
         if core {
             self.sre_core += w * rel * rel;
@@ -455,8 +498,20 @@ impl Row {
         }
     }
 
-    fn finish(self) -> Metrics {
+    /// The metrics, the maxima's pairs named by `pair`.
+    fn finish(self, pair: impl Fn(A) -> (Vec3, Vec3)) -> Metrics {
         let mut m = self.m;
+        let named = |at: Option<A>| {
+            at.map_or_else(Pair::default, |a| {
+                let (wi, wo) = pair(a);
+                Pair {
+                    wi: wi.to_array(),
+                    wo: wo.to_array(),
+                }
+            })
+        };
+        m.max_abs_at = named(self.max_abs_at);
+        m.max_rel_at = named(self.max_rel_at);
         if self.sw > 0.0 {
             m.rmse = (self.se / self.sw).sqrt();
             m.rel_rmse = (self.sre / self.sw).sqrt();
@@ -564,7 +619,13 @@ fn signed_log1p(x: f64) -> f64 {
 /// The `_core` metrics' region: cos θi ≥ 0.1 and cos θo ≥ 0.1 (where renders look).
 #[inline]
 pub fn in_core(wi: Vec3, wo: Vec3) -> bool {
-    wi.z >= 0.1 && wo.z >= 0.1
+    in_core_cos(wi.z, wo.z)
+}
+
+/// [`in_core`] from cos θi and cos θo.
+#[inline]
+pub fn in_core_cos(cos_i: f64, cos_o: f64) -> bool {
+    cos_i >= 0.1 && cos_o >= 0.1
 }
 
 /// ε of the relative metrics for reference values `f` (pair-major, all channels pooled,
@@ -720,7 +781,7 @@ fn check_pairs(
         },
     );
     let eps: Vec<f64> = eps.iter().map(EpsilonSum::epsilon).collect();
-    let mut rows: Vec<Row> = (0..=c)
+    let mut rows: Vec<Row<(Vec3, Vec3)>> = (0..=c)
         .map(|r| Row::new(eps[r], if r == 0 { n_core * c } else { n_core }))
         .collect();
     // Pass 2: the terms of every value, summed row by row in the set's order.
@@ -745,7 +806,7 @@ fn check_pairs(
             }
         },
     );
-    let mut rows = rows.into_iter().map(Row::finish);
+    let mut rows = rows.into_iter().map(|r| r.finish(|pair| pair));
     let combined = rows.next().unwrap_or_default();
     Ok(SetReport {
         set: name.to_string(),

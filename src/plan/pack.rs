@@ -405,21 +405,22 @@ fn log_spaces_of(table: &Table, est: &ErrorEstimator) -> Vec<InterpSpace> {
         return Vec::new();
     }
     let cosine = table.grid().weight() == InterpWeight::Cosine;
-    let (pairs, values) = est.reference();
+    let (cos_i, cos_o, values) = est.reference();
     let c = table.channels().len();
-    let sum: f64 = pairs
+    let sum: f64 = cos_i
         .iter()
+        .zip(cos_o)
         .zip(values.chunks_exact(c))
-        .map(|((wi, wo), v)| {
+        .map(|((ci, co), v)| {
             let m = if cosine {
-                wi.z.max(0.0) * wo.z.max(0.0)
+                ci.max(0.0) * co.max(0.0)
             } else {
                 1.0
             };
             v.iter().map(|f| (m * f).abs()).sum::<f64>()
         })
         .sum();
-    let eps = 1e-3 * sum / (pairs.len() * c).max(1) as f64;
+    let eps = 1e-3 * sum / (cos_i.len() * c).max(1) as f64;
     [eps, eps * 1e-3]
         .into_iter()
         .filter_map(|s| InterpSpace::log(s).ok())
