@@ -51,6 +51,16 @@ const WO_Z_MIN: f64 = 1e-3;
 const NDF_FLOOR: f64 = 1e-6;
 const VNDF_FLOOR: f64 = 1e-5;
 const LUMINANCE_FLOOR: f64 = 1e-4;
+/// VNDF columns next to the pole (u_θ = 0 and the first node) that hold 0. The density over
+/// the unit square behaves like u_θ³ at the pole (its Jacobian u_θ sin θm), and Mitsuba's pdf
+/// divides the bilinear density by that Jacobian: with a nonzero first node the pdf grew like
+/// 1/u_θ² inside the first cell, up to ~50× the lobe's peak within 0.001° of the mirror
+/// direction, which the χ² test's quadrature points hit at θi = 0° and 80° (issue #21). With
+/// the first two columns 0 the pdf stays within ~1.3× of its value at the third node (1.19×,
+/// the largest of 8t/(1 + t)³ over the second cell, for a density exactly cubic at the nodes),
+/// and the cap of half vectors within (1/(W − 1))²·90° of the pole (0.0056° at W = 128; twice
+/// that from the mirror direction) is not sampled.
+const POLE_COLUMNS: usize = 2;
 /// 1/6 of the colour columns lie beyond the horizon (`align_horizon`): room for each VNDF row
 /// to keep its own density past its horizon as far as the horizons of the neighbouring rows
 /// and slices (with 1/16 most rows had no room for that; 1/4 was no better than 1/6).
@@ -317,8 +327,11 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
                 .map(|(v, d)| v * mix_at(*d))
                 .collect();
             let vmax = vndf.iter().cloned().fold(0.0, f64::max);
-            for v in vndf.iter_mut() {
-                *v = v.max(VNDF_FLOOR * vmax);
+            for row in vndf.chunks_exact_mut(h) {
+                for v in row.iter_mut() {
+                    *v = v.max(VNDF_FLOOR * vmax);
+                }
+                row[..POLE_COLUMNS].fill(0.0);
             }
             // The horizon on the colour grid: beyond its horizon (the u_θ where reflect(wi, m)
             // reaches wo.z = 0) every VNDF row keeps its own density for a while, then gets a
