@@ -293,6 +293,15 @@ fn cli_writes_rgl_and_refuses_what_it_cannot_represent() {
         .assert()
         .code(2)
         .stderr(predicates::str::contains("--grid does not apply"));
+    // Folding the azimuths of an isotropic source is a no-op, said in a note.
+    Command::cargo_bin("brdfpack")
+        .unwrap()
+        .args(["convert", "lambert", "-o"])
+        .arg(d.path().join("y.bsdf"))
+        .args(["--rgl-fold-phi", "--rgl-theta-slices", "3"])
+        .assert()
+        .success()
+        .stderr(predicates::str::contains("nothing to fold"));
 }
 
 #[test]
@@ -339,4 +348,88 @@ fn the_sampling_density_stays_bounded_next_to_the_mirror_direction() {
         "q/Jacobian reaches {worst}× its value at the third node"
     );
     assert!(worst >= 1.0, "{worst}");
+}
+
+/// Anisotropic and mirror-asymmetric: a Lambertian term scaled by 1 + 0.5·sin(φi + 0.3), so
+/// f(M wi, M wo) ≠ f(wi, wo) for both mirrors.
+struct Skewed {
+    channels: brdfpack::brdf::Channels,
+}
+
+impl Brdf for Skewed {
+    fn channels(&self) -> &brdfpack::brdf::Channels {
+        &self.channels
+    }
+    fn eval(&self, wi: brdfpack::geometry::Vec3, _wo: brdfpack::geometry::Vec3, out: &mut [f64]) {
+        let phi = wi.y.atan2(wi.x);
+        out.fill(0.3 * (1.0 + 0.5 * (phi + 0.3).sin()) / std::f64::consts::PI);
+    }
+    fn is_isotropic(&self) -> bool {
+        false
+    }
+    fn describe(&self) -> String {
+        "skewed".into()
+    }
+}
+
+#[test]
+fn folded_azimuths_span_a_quarter_turn_and_need_mirror_symmetry() {
+    let opts = RglWriteOptions {
+        theta_slices: 3,
+        phi_slices: 5,
+        vndf_res: 16,
+        colour_res: 8,
+        ndf_res: 16,
+        ndf_phi_res: 9,
+        fold_phi: true,
+        ..RglWriteOptions::default()
+    };
+    // Ward with axes on x and y: mirror-symmetric, so the slices span [−π, −π/2] and Mitsuba's
+    // reduction 2π / span is 4.
+    let ward = Model::parse("ward:alpha_x=0.1,alpha_y=0.3").unwrap();
+    let w = write_rgl(&ward, &opts).unwrap();
+    let tf = TensorFile::parse(&w.bytes, "ward.bsdf").unwrap();
+    let phi = tf.f32_values(tf.get("phi_i").unwrap()).unwrap();
+    assert_eq!(phi.len(), 5);
+    assert_eq!(phi[0], -std::f32::consts::PI);
+    assert_eq!(phi[4], -std::f32::consts::FRAC_PI_2);
+    let reduction = (2.0 * std::f32::consts::PI / (phi[4] - phi[0])).round();
+    assert_eq!(reduction, 4.0);
+    assert!(w.description.contains("mirror-folded"), "{}", w.description);
+    // The same slices unfolded span the whole turn.
+    let full = write_rgl(
+        &ward,
+        &RglWriteOptions {
+            fold_phi: false,
+            ..opts.clone()
+        },
+    )
+    .unwrap();
+    let tf = TensorFile::parse(&full.bytes, "ward.bsdf").unwrap();
+    let phi = tf.f32_values(tf.get("phi_i").unwrap()).unwrap();
+    assert_eq!(
+        (phi[0], phi[4]),
+        (-std::f32::consts::PI, std::f32::consts::PI)
+    );
+    // A source that the folding would change is refused as bad input, naming the mirror.
+    let skewed = Skewed {
+        channels: brdfpack::brdf::Channels::default_for(3),
+    };
+    let e = write_rgl(&skewed, &opts).unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    let msg = e.to_string();
+    assert!(
+        msg.contains("not mirror-symmetric") && msg.contains("→"),
+        "{msg}"
+    );
+    assert!(
+        write_rgl(
+            &skewed,
+            &RglWriteOptions {
+                fold_phi: false,
+                ..opts
+            }
+        )
+        .is_ok()
+    );
 }

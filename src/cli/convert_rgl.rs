@@ -8,16 +8,22 @@ use crate::io::atomic;
 use crate::io::rgl::write::{RglWriteOptions, rewrite_rgl, write_rgl};
 use clap::Args;
 
-/// Resolutions of an RGL `.bsdf` (defaults: RGL's 128-node NDF/VNDF, 32×32 colour grid;
-/// 16 θi slices instead of the 8 of the measured files).
+/// Resolutions of an RGL `.bsdf` (defaults: RGL's 128-node NDF/VNDF, a 64×64 colour grid;
+/// 32 θi slices instead of the 8 of the measured files).
 #[derive(Args, Debug, Clone)]
 pub struct RglArgs {
-    /// RGL .bsdf: incident elevation slices, uniform over [0°, 90°].
+    /// RGL .bsdf: incident elevation slices over [0°, 89.5°], denser towards grazing.
     #[arg(long, default_value_t = RglWriteOptions::default().theta_slices, help_heading = "RGL .bsdf output")]
     pub rgl_theta_slices: usize,
-    /// RGL .bsdf: incident azimuth slices over [−180°, 180°] (anisotropic sources only).
+    /// RGL .bsdf: incident azimuth slices over [−180°, 180°] (anisotropic sources only;
+    /// over [−180°, −90°] with --rgl-fold-phi).
     #[arg(long, default_value_t = RglWriteOptions::default().phi_slices, help_heading = "RGL .bsdf output")]
     pub rgl_phi_slices: usize,
+    /// RGL .bsdf: azimuth slices over a quarter turn, which Mitsuba 3 mirrors every query
+    /// into (4× denser slices at the same size). Only for sources mirror-symmetric about the
+    /// x and y axes (checked); pbrt-v4 does not load such files.
+    #[arg(long, help_heading = "RGL .bsdf output")]
+    pub rgl_fold_phi: bool,
     /// RGL .bsdf: colour grid n×n of the warped sample square.
     #[arg(long, default_value_t = RglWriteOptions::default().colour_res, help_heading = "RGL .bsdf output")]
     pub rgl_colour_res: usize,
@@ -45,6 +51,7 @@ impl RglArgs {
         RglWriteOptions {
             theta_slices: self.rgl_theta_slices,
             phi_slices: self.rgl_phi_slices,
+            fold_phi: self.rgl_fold_phi,
             colour_res: self.rgl_colour_res,
             vndf_res: self.rgl_vndf_res,
             ndf_res: self.rgl_ndf_res,

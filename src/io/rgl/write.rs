@@ -82,8 +82,13 @@ pub struct RglWriteOptions {
     /// measurements use 8; Mitsuba uses the last slice unchanged beyond it).
     pub theta_slices: usize,
     /// Incident azimuth slices of anisotropic sources, uniform over [−π, π] (both ends kept,
-    /// so Mitsuba's φ reduction is 1: no folding).
+    /// so Mitsuba's φ reduction is 1: no folding), or over [−π, −π/2] with `fold_phi`.
     pub phi_slices: usize,
+    /// Write the φi slices over a quarter turn, [−π, −π/2]: Mitsuba 3 then mirrors every query
+    /// into that quadrant (its `m_reduction` 4), which is exact for a source mirror-symmetric
+    /// about the x and y axes (refused otherwise), and the same slice count is 4× as dense.
+    /// pbrt-v4 refuses such files (it supports reduction 1 only).
+    pub fold_phi: bool,
     /// Columns (u_θ) of `ndf` and `sigma` (RGL: 128).
     pub ndf_res: usize,
     /// Rows (u_φ) of `ndf` and `sigma` for anisotropic sources (isotropic: 2 equal rows).
@@ -104,6 +109,7 @@ impl Default for RglWriteOptions {
         RglWriteOptions {
             theta_slices: 32,
             phi_slices: 17,
+            fold_phi: false,
             ndf_res: 128,
             ndf_phi_res: 65,
             vndf_res: 128,
@@ -265,12 +271,29 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
             (SLICE_THETA_MAX * (t + a * t * (1.0 - t))) as f32
         })
         .collect();
+    let fold = opts.fold_phi && !isotropic;
+    if opts.fold_phi && isotropic {
+        notes.push(
+            "--rgl-fold-phi: the source is isotropic (one φi slice), nothing to fold".to_string(),
+        );
+    }
+    if fold && let Some(asym) = mirror_asymmetry(src) {
+        return Err(Error::input(format!(
+            "--rgl-fold-phi: {} is not mirror-symmetric about the x and y axes ({asym}), so \
+             Mitsuba's folding of φi into a quarter turn would change it; write it without \
+             --rgl-fold-phi",
+            src.describe()
+        )));
+    }
     let phi_i: Vec<f32> = if isotropic {
         vec![0.0]
     } else {
         let np = opts.phi_slices;
+        // Mitsuba's `m_reduction` is 2π over the slices' span: 4 for a quarter turn, where it
+        // mirrors wi (and wo with it) into x ≤ 0, y ≤ 0, i.e. φi ∈ [−π, −π/2].
+        let span = if fold { 0.5 * PI } else { 2.0 * PI };
         (0..np)
-            .map(|p| (-PI + 2.0 * PI * p as f64 / (np - 1) as f64) as f32)
+            .map(|p| (-PI + span * p as f64 / (np - 1) as f64) as f32)
             .collect()
     };
     let slices: Vec<(f64, f64)> = phi_i
@@ -509,6 +532,11 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
         nt,
         if isotropic {
             String::new()
+        } else if fold {
+            format!(
+                " x {} phi_i (over [-180, -90] deg, mirror-folded by the reader)",
+                phi_i.len()
+            )
         } else {
             format!(" x {} phi_i", phi_i.len())
         },
@@ -545,6 +573,63 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
         iterations,
         ndf_change,
         notes,
+    })
+}
+
+/// Pairs on which [`mirror_asymmetry`] compares a source with its mirror images.
+const MIRROR_TEST_PAIRS: usize = 4096;
+/// Largest relative difference between a source and its mirror image that counts as equal:
+/// rounding of an analytic model (~1e-15) and f32 tables interpolated at mirrored positions.
+const MIRROR_TOLERANCE: f64 = 1e-5;
+
+/// How far `src` is from mirror symmetry about the x and the y axis, f(M wi, M wo) = f(wi, wo)
+/// for M = diag(−1, 1, 1) and diag(1, −1, 1) (what Mitsuba's quarter-turn folding assumes):
+/// `None` when every channel agrees within [`MIRROR_TOLERANCE`] of the larger value (floored
+/// at 1e-6 of the largest value seen) on a fixed set of uniform pairs, else the worst pair.
+fn mirror_asymmetry(src: &dyn Brdf) -> Option<String> {
+    /// A mirror: its name and what it does to a direction.
+    struct Mirror(&'static str, fn(Vec3) -> Vec3);
+    const MIRRORS: [Mirror; 2] = [
+        Mirror("x → −x", |v| Vec3::new(-v.x, v.y, v.z)),
+        Mirror("y → −y", |v| Vec3::new(v.x, -v.y, v.z)),
+    ];
+    let nc = src.channels().len();
+    let set = crate::check::SampleSet::uniform(MIRROR_TEST_PAIRS, 0x6d69_7272_6f72);
+    let mut f = vec![0.0; nc];
+    let values: Vec<f64> = set
+        .pairs
+        .iter()
+        .flat_map(|&(wi, wo)| {
+            src.eval(wi, wo, &mut f);
+            f.clone()
+        })
+        .collect();
+    let scale = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0f64, |m, v| m.max(v.abs()));
+    let mut worst: Option<(f64, Vec3, Vec3, &str)> = None;
+    for (p, &(wi, wo)) in set.pairs.iter().enumerate() {
+        for Mirror(name, m) in &MIRRORS {
+            src.eval(m(wi), m(wo), &mut f);
+            for (a, b) in values[p * nc..(p + 1) * nc].iter().zip(&f) {
+                if !(a.is_finite() && b.is_finite()) {
+                    continue;
+                }
+                let big = a.abs().max(b.abs()).max(1e-6 * scale);
+                let rel = (a - b).abs() / big.max(f64::MIN_POSITIVE);
+                if rel > MIRROR_TOLERANCE && worst.is_none_or(|w| rel > w.0) {
+                    worst = Some((rel, wi, wo, name));
+                }
+            }
+        }
+    }
+    worst.map(|(rel, wi, wo, name)| {
+        format!(
+            "{name}: relative difference {rel:.2e} at wi = ({:.3}, {:.3}, {:.3}), \
+             wo = ({:.3}, {:.3}, {:.3})",
+            wi.x, wi.y, wi.z, wo.x, wo.y, wo.z
+        )
     })
 }
 
