@@ -518,8 +518,17 @@ type FieldEdit = Box<dyn FnOnce(&mut Vec<FieldData<'static>>)>;
 fn semantic_errors_are_refused() {
     let cases: Vec<(FieldEdit, &str)> = vec![
         (
+            // Four φi slices make the file anisotropic: its tables must then hold four.
             Box::new(|f| replace(f, FieldData::f32("phi_i", vec![4], &[0.0, 1.0, 2.0, 3.0]))),
-            "anisotropic RGL files are not supported",
+            "field `vndf`: shape [1, 2, 3, 5] does not match [phi_i, theta_i, H, W] = [4, 2, ≥2, ≥2]",
+        ),
+        (
+            Box::new(|f| replace(f, FieldData::f32("phi_i", vec![3], &[0.0, 1.0, 1.0]))),
+            "field `phi_i`: values must increase strictly, found 1 then 1",
+        ),
+        (
+            Box::new(|f| replace(f, FieldData::f32("phi_i", vec![2], &[0.0, 1.0]))),
+            "`phi_i`: 2 slices, expected 1 (isotropic) or at least 3",
         ),
         (
             Box::new(|f| replace(f, FieldData::f32("theta_i", vec![2], &[0.5, 0.5]))),

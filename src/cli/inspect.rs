@@ -125,6 +125,17 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
                 info.vndf_resolution[0],
                 info.vndf_resolution[1]
             );
+            if info.phi_slices > 1 {
+                outln!(
+                    "anisotropic: reduction {} ({})",
+                    info.reduction,
+                    match info.reduction {
+                        2 => "queries turned by π into the half turn the slices span",
+                        4 => "queries mirrored into the quadrant the slices span",
+                        _ => "no folding",
+                    }
+                );
+            }
             outln!(
                 "values: {} entries per channel, range {:e} .. {:e}",
                 info.entries_per_channel,

@@ -18,7 +18,7 @@ use crate::math::{FRAC_PI_2, PI, sqr};
 use crate::{Error, Result};
 use std::path::Path;
 use tensor::{TensorField, TensorFile};
-use warp::{ColourTables, Grid2, ThetaAxis, VndfWarp};
+use warp::{ColourTables, Grid2, ParamBlend, ThetaAxis, VndfWarp};
 
 /// Files larger than this are refused before reading (RGL files are about 0.6–2.5 MB).
 pub const MAX_FILE_BYTES: u64 = 1 << 30;
@@ -34,8 +34,12 @@ pub struct RglInfo {
     pub vndf_resolution: [usize; 2],
     /// Incident elevations of the slices (radians).
     pub theta_i: Vec<f64>,
-    /// Number of incident azimuth slices (1 for the supported isotropic files).
+    /// Number of incident azimuth slices (1 for isotropic files).
     pub phi_slices: usize,
+    /// Mitsuba's `m_reduction` of an anisotropic file, round(2π / φi span): at 2 it turns wi
+    /// and wo by π into φi < 0, at 4 it mirrors them into x ≤ 0, y ≤ 0 (1: no folding; 1 for
+    /// isotropic files).
+    pub reduction: i64,
     /// Whether the file is spectral (`spectra` + `wavelengths`) rather than RGB.
     pub spectral: bool,
     /// The `jacobian` flag: the data are multiplied by D(m)/(4σ(wi)).
@@ -54,6 +58,8 @@ pub struct RglBsdf {
     info: RglInfo,
     channels: Channels,
     theta_axis: ThetaAxis,
+    /// The φi slices of an anisotropic file; `None` for an isotropic one.
+    phi_axis: Option<ThetaAxis>,
     ndf: Grid2,
     sigma: Grid2,
     vndf: VndfWarp,
@@ -95,17 +101,37 @@ impl RglBsdf {
         let phi_field = file.require("phi_i")?;
         let phi_i = vector(&file, phi_field)?;
         let n_phi = phi_i.len();
-        if n_phi > 2 {
+        if n_phi == 0 || n_phi == 2 {
             return Err(bad(format!(
-                "anisotropic RGL files are not supported (field `phi_i` has {n_phi} slices; the \
-                 reduction folding for them is not specified well enough to match Mitsuba)"
+                "field `phi_i`: {n_phi} slices, expected 1 (isotropic) or at least 3 \
+                 (anisotropic; Mitsuba treats 2 as isotropic, which brdfpack does not read)"
             )));
         }
-        if n_phi != 1 {
-            return Err(bad(format!(
-                "field `phi_i`: {n_phi} slices, expected 1 (isotropic files with 2 φi slices are not supported)"
-            )));
-        }
+        let phi_axis = if n_phi > 2 {
+            let phi: Vec<f64> = phi_i.iter().map(|&p| p as f64).collect();
+            if let Some(w) = phi.windows(2).find(|w| w[0] >= w[1]) {
+                return Err(file.field_error(
+                    "phi_i",
+                    format!(
+                        "values must increase strictly, found {} then {}",
+                        w[0], w[1]
+                    ),
+                ));
+            }
+            Some(ThetaAxis::new(phi))
+        } else {
+            None
+        };
+        // Mitsuba: m_reduction = (int) rint(2π / (φ_last − φ_first)) in float32.
+        let reduction = match &phi_axis {
+            Some(a) => {
+                let v = a.values();
+                let r = (2.0 * std::f32::consts::PI / (v[n_phi - 1] as f32 - v[0] as f32))
+                    .round_ties_even();
+                r as i64
+            }
+            None => 1,
+        };
 
         let theta_field = file.require("theta_i")?;
         let theta_i: Vec<f64> = vector(&file, theta_field)?
@@ -216,6 +242,7 @@ impl RglBsdf {
                 vndf_resolution: [w, h],
                 theta_i: theta_i.clone(),
                 phi_slices: n_phi,
+                reduction,
                 spectral: data_name == "spectra",
                 jacobian,
                 negative_counts,
@@ -224,6 +251,7 @@ impl RglBsdf {
             },
             channels,
             theta_axis: ThetaAxis::new(theta_i),
+            phi_axis,
             ndf,
             sigma,
             vndf,
@@ -263,7 +291,11 @@ impl RglBsdf {
             out.fill(0.0);
             return;
         }
-        // Step 2 (reduction folding) applies to anisotropic files only; they are refused.
+        if let Some(phi_axis) = &self.phi_axis {
+            self.eval_cosine_anisotropic(phi_axis, wi, wo, out);
+            return;
+        }
+        // Step 2 (reduction folding) applies to anisotropic files only.
         // Step 3: the half vector (wi.z + wo.z > 0, so the sum is never zero).
         let m = (wi + wo) * (1.0 / (wi + wo).length());
         // Step 4: angles. φi and φm enter only through φm − φi (isotropic), computed as one
@@ -293,6 +325,55 @@ impl RglBsdf {
         }
         // Step 10: eval = spec, f_r·cos θo.
     }
+
+    /// [`RglBsdf::eval_cosine`] of an anisotropic file, as Mitsuba's `measured` plugin: the
+    /// reduction folding, absolute azimuths of m, and the warps and tables blended over the
+    /// four nearest (φi, θi) slices. `wi` and `wo` are above the horizon and finite.
+    fn eval_cosine_anisotropic(
+        &self,
+        phi_axis: &ThetaAxis,
+        mut wi: Vec3,
+        mut wo: Vec3,
+        out: &mut [f64],
+    ) {
+        // Step 2: a file whose φi slices span 1/2 (1/4) of a turn holds one half (quadrant)
+        // of the azimuths; wi and wo are turned by π (mirrored in x and y) into it, as the
+        // sign of wi's y (and x) says. Mitsuba's rule, ±0 included: a zero y counts as
+        // positive, so wi.y = +0 becomes −0, whose φi Dr.Jit's atan2 makes +π.
+        if self.info.reduction >= 2 {
+            let sy = wi.y;
+            let sx = if self.info.reduction == 4 { wi.x } else { sy };
+            wi = Vec3::new(mulsign_neg(wi.x, sx), mulsign_neg(wi.y, sy), wi.z);
+            wo = Vec3::new(mulsign_neg(wo.x, sx), mulsign_neg(wo.y, sy), wo.z);
+        }
+        // Steps 3–5 with absolute azimuths (φm is not taken relative to φi).
+        let m = (wi + wo) * (1.0 / (wi + wo).length());
+        let (theta_i, phi_i) = (elevation(wi), drjit_atan2(wi.y, wi.x));
+        let (theta_m, phi_m) = (elevation(m), drjit_atan2(m.y, m.x));
+        let u_wi = [(theta_i / FRAC_PI_2).sqrt(), (phi_i + PI) / (2.0 * PI)];
+        let v = (phi_m + PI) / (2.0 * PI);
+        let u_m = [(theta_m / FRAC_PI_2).sqrt(), v - v.floor()];
+        // Step 6 in both parameters: the (φi, θi) slices, bilinearly.
+        let blend = ParamBlend::new(
+            phi_axis.locate(phi_i),
+            self.theta_axis.locate(theta_i),
+            self.theta_axis.values().len(),
+        );
+        // Steps 7–9 as for isotropic files.
+        let sample = self.vndf.invert(u_m, &blend);
+        self.colour.lookup(sample, &blend, out);
+        if self.info.jacobian {
+            let scale = self.ndf.eval(u_m) / (4.0 * self.sigma.eval(u_wi));
+            out.iter_mut().for_each(|o| *o *= scale);
+        }
+    }
+}
+
+/// Dr.Jit's `mulsign_neg(a, s)`: a with its sign flipped unless s's sign bit is set
+/// (−|a|·sign(s) for nonzero s; a zero s counts by its sign bit).
+#[inline]
+fn mulsign_neg(a: f64, s: f64) -> f64 {
+    if s.is_sign_negative() { a } else { -a }
 }
 
 impl Brdf for RglBsdf {

@@ -12,24 +12,62 @@ pub struct SliceBlend {
     pub w1: f64,
 }
 
-impl SliceBlend {
-    /// The two blended slices of a table stored slice after slice, `len` values each.
-    #[inline]
-    fn slices<'t>(&self, table: &'t [f32], len: usize) -> (&'t [f32], &'t [f32]) {
-        (
-            &table[self.k0 * len..][..len],
-            &table[self.k1 * len..][..len],
-        )
-    }
+/// How a query blends the slices of a table stored slice after slice: the θi slices of an
+/// isotropic file ([`SliceBlend`]) or the (φi, θi) slices of an anisotropic one
+/// ([`ParamBlend`]), as Mitsuba's `Marginal2D` interpolates its parameters.
+pub trait Blend {
+    /// Entry `i` of the blended slice, Σ w_s·T[k_s][i], of a table whose slices hold `len`
+    /// values each.
+    fn mix(&self, table: &[f32], len: usize, i: usize) -> f64;
+}
 
-    /// T̃ = w0·T[k0] + w1·T[k1] for one entry `a` of slice k0 and `b` of slice k1.
+impl Blend for SliceBlend {
+    /// T̃ = w0·T[k0] + w1·T[k1].
     #[inline]
-    fn mix(&self, a: f32, b: f32) -> f64 {
-        self.w0 * a as f64 + self.w1 * b as f64
+    fn mix(&self, table: &[f32], len: usize, i: usize) -> f64 {
+        self.w0 * table[self.k0 * len + i] as f64 + self.w1 * table[self.k1 * len + i] as f64
     }
 }
 
-/// The incident-elevation axis `theta_i`: finite, strictly increasing, at least one value.
+/// The four (φi, θi) slices an anisotropic file's query blends, bilinearly in the two
+/// parameters; slices are stored φi-major ([φi][θi], the file's layout).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ParamBlend {
+    k: [usize; 4],
+    w: [f64; 4],
+}
+
+impl ParamBlend {
+    /// The product of a φi blend and a θi blend over `n_theta` θi slices.
+    pub fn new(phi: SliceBlend, theta: SliceBlend, n_theta: usize) -> ParamBlend {
+        let at = |p: usize, t: usize| p * n_theta + t;
+        ParamBlend {
+            k: [
+                at(phi.k0, theta.k0),
+                at(phi.k0, theta.k1),
+                at(phi.k1, theta.k0),
+                at(phi.k1, theta.k1),
+            ],
+            w: [
+                phi.w0 * theta.w0,
+                phi.w0 * theta.w1,
+                phi.w1 * theta.w0,
+                phi.w1 * theta.w1,
+            ],
+        }
+    }
+}
+
+impl Blend for ParamBlend {
+    #[inline]
+    fn mix(&self, table: &[f32], len: usize, i: usize) -> f64 {
+        let t = |s: usize| self.w[s] * table[self.k[s] * len + i] as f64;
+        t(0) + t(1) + t(2) + t(3)
+    }
+}
+
+/// A slice parameter axis, `theta_i` (or `phi_i` of an anisotropic file): finite, strictly
+/// increasing, at least one value.
 #[derive(Clone, Debug)]
 pub struct ThetaAxis {
     values: Vec<f64>,
@@ -250,14 +288,12 @@ impl VndfWarp {
     /// Step 7: the sample point (sx, sy) that the forward warp of the blended slice maps to
     /// `u` (clamped to [0, 1]²).
     #[inline]
-    pub fn invert(&self, u: [f64; 2], blend: &SliceBlend) -> [f64; 2] {
+    pub fn invert<B: Blend>(&self, u: [f64; 2], blend: &B) -> [f64; 2] {
         let (w, h) = (self.width, self.height);
         let (i, fx) = self.x.cell(u[0]);
         let (j, fy) = self.y.cell(u[1]);
-        let (d0, d1) = blend.slices(&self.density, w * h);
-        let (c0s, c1s) = blend.slices(&self.conditional_cdf, h * (w - 1));
-        let d = |y: usize, x: usize| blend.mix(d0[y * w + x], d1[y * w + x]);
-        let c = |y: usize, x: usize| blend.mix(c0s[y * (w - 1) + x], c1s[y * (w - 1) + x]);
+        let d = |y: usize, x: usize| blend.mix(&self.density, w * h, y * w + x);
+        let c = |y: usize, x: usize| blend.mix(&self.conditional_cdf, h * (w - 1), y * (w - 1) + x);
         let (v00, v10) = (d(j, i), d(j, i + 1));
         let (v01, v11) = (d(j + 1, i), d(j + 1, i + 1));
         // Density along the row at y, at the cell's two columns.
@@ -278,8 +314,7 @@ impl VndfWarp {
         // Marginal: partial cell, then the CDF below (already normalised to end at 1).
         let mut sy = fy * lerp(r0, r1, fy / 2.0) / self.y.cells;
         if j > 0 {
-            let (g0, g1) = blend.slices(&self.marginal_cdf, h - 1);
-            sy += blend.mix(g0[j - 1], g1[j - 1]);
+            sy += blend.mix(&self.marginal_cdf, h - 1, j - 1);
         }
         [sx, sy]
     }
@@ -330,27 +365,20 @@ impl ColourTables {
     /// Step 8: bilinear lookup at `sample` of the slice-blended tables, one value per
     /// channel written into `out` (length = channel count).
     #[inline]
-    pub fn lookup(&self, sample: [f64; 2], blend: &SliceBlend, out: &mut [f64]) {
+    pub fn lookup<B: Blend>(&self, sample: [f64; 2], blend: &B, out: &mut [f64]) {
         let (w, nc) = (self.width, self.channels);
         let (i, fx) = self.x.cell(sample[0]);
         let (j, fy) = self.y.cell(sample[1]);
-        let (t0, t1) = blend.slices(&self.data, w * self.height * nc);
+        let len = w * self.height * nc;
         // Corners (i, j) and (i + 1, j) are adjacent, as are (i, j + 1) and (i + 1, j + 1).
-        let at = |y: usize| (y * w + i) * nc;
-        let ((a00, a10), (a01, a11)) = (corner_pair(t0, at(j), nc), corner_pair(t0, at(j + 1), nc));
-        let ((b00, b10), (b01, b11)) = (corner_pair(t1, at(j), nc), corner_pair(t1, at(j + 1), nc));
+        let (lo, hi) = ((j * w + i) * nc, ((j + 1) * w + i) * nc);
         for (ch, o) in out.iter_mut().enumerate().take(nc) {
-            let bottom = lerp(blend.mix(a00[ch], b00[ch]), blend.mix(a10[ch], b10[ch]), fx);
-            let top = lerp(blend.mix(a01[ch], b01[ch]), blend.mix(a11[ch], b11[ch]), fx);
+            let m = |at: usize| blend.mix(&self.data, len, at + ch);
+            let bottom = lerp(m(lo), m(lo + nc), fx);
+            let top = lerp(m(hi), m(hi + nc), fx);
             *o = lerp(bottom, top, fy);
         }
     }
-}
-
-/// The channels of two horizontally adjacent grid points starting at `start`.
-#[inline]
-fn corner_pair(table: &[f32], start: usize, nc: usize) -> (&[f32], &[f32]) {
-    table[start..][..2 * nc].split_at(nc)
 }
 
 #[cfg(test)]
