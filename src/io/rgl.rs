@@ -109,15 +109,7 @@ impl RglBsdf {
         }
         let phi_axis = if n_phi > 2 {
             let phi: Vec<f64> = phi_i.iter().map(|&p| p as f64).collect();
-            if let Some(w) = phi.windows(2).find(|w| w[0] >= w[1]) {
-                return Err(file.field_error(
-                    "phi_i",
-                    format!(
-                        "values must increase strictly, found {} then {}",
-                        w[0], w[1]
-                    ),
-                ));
-            }
+            strictly_increasing(&file, "phi_i", &phi)?;
             Some(ThetaAxis::new(phi))
         } else {
             None
@@ -142,15 +134,7 @@ impl RglBsdf {
         if n_theta == 0 {
             return Err(file.field_error("theta_i", "is empty, expected at least one slice"));
         }
-        if let Some(w) = theta_i.windows(2).find(|w| w[0] >= w[1]) {
-            return Err(file.field_error(
-                "theta_i",
-                format!(
-                    "values must increase strictly, found {} then {}",
-                    w[0], w[1]
-                ),
-            ));
-        }
+        strictly_increasing(&file, "theta_i", &theta_i)?;
 
         // ndf and sigma: 2D grids over the half-vector square, used as stored.
         let ndf = grid2(&file, "ndf", false)?;
@@ -455,6 +439,20 @@ fn relative_azimuth(wi: Vec3, m: Vec3) -> f64 {
         -drjit_atan2(wi.y, wi.x)
     } else {
         drjit_atan2(wi.x * m.y - wi.y * m.x, wi.x * m.x + wi.y * m.y)
+    }
+}
+
+/// A slice parameter field's values must increase strictly (Mitsuba's interval search needs it).
+fn strictly_increasing(file: &TensorFile, name: &str, values: &[f64]) -> Result<()> {
+    match values.windows(2).find(|w| w[0] >= w[1]) {
+        Some(w) => Err(file.field_error(
+            name,
+            format!(
+                "values must increase strictly, found {} then {}",
+                w[0], w[1]
+            ),
+        )),
+        None => Ok(()),
     }
 }
 
