@@ -495,3 +495,79 @@ fn anisotropic_files_read_back_close_to_their_source_folded_or_not() {
         "folding did not help: {log:?} {p99:?}"
     );
 }
+
+#[test]
+fn anisotropic_files_with_any_azimuth_span_evaluate_finite() {
+    // An anisotropic file's φi values set Mitsuba's reduction (round(2π / span)); whatever a
+    // file holds there (spans folding by 1, 2, 3, 4 or more, slices far outside [−π, π], a
+    // span so small that the reduction overflows), evaluation stays finite, also for the
+    // directions whose zero components meet the folding's sign rules.
+    use brdfpack::io::rgl::tensor::{FieldData, encode};
+    let m = Model::parse("ggx:alpha_x=0.2,alpha_y=0.4,fresnel=au").unwrap();
+    let opts = RglWriteOptions {
+        theta_slices: 3,
+        phi_slices: 3,
+        colour_res: 6,
+        vndf_res: 8,
+        ndf_res: 8,
+        ndf_phi_res: 5,
+        ..RglWriteOptions::default()
+    };
+    let w = write_rgl(&m, &opts).unwrap();
+    let tf = TensorFile::parse(&w.bytes, "a.bsdf").unwrap();
+    let pi = std::f32::consts::PI;
+    let mut dirs: Vec<brdfpack::geometry::Vec3> = SampleSet::uniform(300, 5)
+        .pairs
+        .iter()
+        .flat_map(|&(a, b)| [a, b])
+        .collect();
+    for (x, y) in [
+        (0.0, 0.0),
+        (-0.0, 0.0),
+        (0.0, -0.0),
+        (0.6, 0.0),
+        (-0.6, -0.0),
+        (0.0, 0.6),
+    ] {
+        let z = (1.0f64 - x * x - y * y).sqrt();
+        dirs.push(brdfpack::geometry::Vec3::new(x, y, z));
+    }
+    for (phi, reduction) in [
+        ([-pi, 0.0, pi], 1),
+        ([-pi, -0.5 * pi, 0.0], 2),
+        ([-pi, -0.8 * pi, -pi / 3.0], 3),
+        ([-pi, -0.75 * pi, -0.5 * pi], 4),
+        ([-pi, -0.9 * pi, -0.8 * pi], 10),
+        ([100.0, 200.0, 300.0], 0),
+        ([0.0, 1e-30, 2e-30], i64::MAX),
+    ] {
+        let fields: Vec<FieldData> = tf
+            .fields()
+            .iter()
+            .map(|f| {
+                if f.name == "phi_i" {
+                    FieldData::f32("phi_i", vec![3], &phi)
+                } else {
+                    FieldData {
+                        name: &f.name,
+                        dtype: f.dtype,
+                        shape: f.shape.clone(),
+                        data: tf.raw(f).to_vec(),
+                    }
+                }
+            })
+            .collect();
+        let r = RglBsdf::from_bytes(&encode(&fields), "a.bsdf").unwrap();
+        assert_eq!(r.info().reduction, reduction, "{phi:?}");
+        let mut out = [0.0; 3];
+        for &wi in &dirs {
+            for &wo in &dirs {
+                r.eval(wi, wo, &mut out);
+                assert!(
+                    out.iter().all(|v| v.is_finite()),
+                    "{phi:?}: {wi:?} {wo:?} -> {out:?}"
+                );
+            }
+        }
+    }
+}
