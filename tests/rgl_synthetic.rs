@@ -544,6 +544,16 @@ fn semantic_errors_are_refused() {
             "field `sigma`: value #1 is 0e0, expected a normal positive number",
         ),
         (
+            // Found by fuzzing: interpolating 1e20 and 1 cancels to 0 and eval divides by it.
+            Box::new(|f| {
+                replace(
+                    f,
+                    FieldData::f32("sigma", vec![2, 2], &[1.0, 1e20, 1.0, 1.0]),
+                )
+            }),
+            "field `sigma`: values span 1e0 .. 1e20, more than a factor of 2^40",
+        ),
+        (
             Box::new(|f| {
                 replace(
                     f,

@@ -506,8 +506,30 @@ fn grid2(file: &TensorFile, name: &str, positive: bool) -> Result<Grid2> {
             ),
         ));
     }
+    // Its bilinear value a + t·(b − a) between a huge and a small node cancels to 0 in f64
+    // once their ratio passes ~2⁵² (a fuzzed σ of 7.4e19 beside 4 made eval infinite); with
+    // the nodes within 2⁴⁰ of each other the rounding error stays below 2⁻¹² of the smallest,
+    // so every interpolated σ is positive. Projected areas of real surfaces span a few
+    // decades (σ ≥ 1 at the normal, ≤ ~1/cos θ at grazing).
+    if positive {
+        let (lo, hi) = values
+            .iter()
+            .fold((f32::INFINITY, 0f32), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        if f64::from(hi) > f64::from(lo) * MAX_POSITIVE_RANGE {
+            return Err(file.field_error(
+                name,
+                format!(
+                    "values span {lo:e} .. {hi:e}, more than a factor of 2^40: interpolating \
+                     between them loses the smaller ones (a projected area spans a few decades)"
+                ),
+            ));
+        }
+    }
     Ok(Grid2::new(cols, rows, values))
 }
+
+/// Largest ratio between the nodes of a grid that must stay positive when interpolated (σ).
+const MAX_POSITIVE_RANGE: f64 = (1u64 << 40) as f64;
 
 /// Smallest cos θo at which an RGL file's values must fit f32 (θo ≈ 89.99994°): finer
 /// than any grid's cell centres, far beyond any real measurement's range of values.
