@@ -234,6 +234,34 @@ impl Table {
         self.bits = BitsCache::default();
     }
 
+    /// The samples, the table consumed (cell-major, channel fastest, as [`Table::data`]).
+    pub fn into_samples(self) -> Vec<f32> {
+        self.data
+    }
+
+    /// Moves the samples out for the rate control, which decodes its candidates into their
+    /// memory instead of holding a second table-sized buffer (`plan::rate`). The table holds
+    /// no samples until [`Table::give_back_samples`]; nothing else may read it meanwhile.
+    pub(crate) fn lend_samples(&mut self) -> Vec<f32> {
+        std::mem::take(&mut self.data)
+    }
+
+    /// Puts samples back after [`Table::lend_samples`]: resized to the table's size, invalid
+    /// cells and any non-finite value set to 0, so the table's invariants hold whatever the
+    /// buffer went through (on an error path it holds an unfinished decode).
+    pub(crate) fn give_back_samples(&mut self, mut data: Vec<f32>) {
+        let c = self.channels.len();
+        data.resize(self.valid.len() * c, 0.0);
+        for (v, &ok) in data.chunks_exact_mut(c.max(1)).zip(&self.valid) {
+            for x in v {
+                if !ok || !x.is_finite() {
+                    *x = 0.0;
+                }
+            }
+        }
+        self.data = data;
+    }
+
     /// The sample and validity buffers, for filling in place (see [`Table::reset`]).
     pub(crate) fn buffers_mut(&mut self) -> (&mut [f32], &mut [bool]) {
         // The caller may change validity: the packed copy is rebuilt on the next batch.

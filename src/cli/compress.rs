@@ -226,11 +226,28 @@ fn run_budget(
             // held while planning, which reads only the samples: they are read again from the
             // file when the lossless codec is chosen (a pipe or device is read once, so its
             // table keeps them).
-            let reread = t.exact().is_some()
-                && std::fs::metadata(&a.input).is_ok_and(|m| m.is_file())
-                && a.input != "-";
+            let regular = std::fs::metadata(&a.input).is_ok_and(|m| m.is_file()) && a.input != "-";
+            let reread = t.exact().is_some() && regular;
             let t = if reread { t.without_exact() } else { t };
-            let mut planned = plan(PackInput::Table(Cow::Owned(t)), &settings, &progress);
+            // A regular file's samples are read again if the lossless chain is chosen, so the
+            // encoder can decode its candidates into their memory meanwhile.
+            let again = || -> crate::Result<Vec<f32>> {
+                match symmetry.apply(Source::open(&a.input)?) {
+                    Source::Table(t) => Ok(t.into_samples()),
+                    _ => Err(Error::Failure(format!(
+                        "{}: the file changed while it was being compressed; no file written",
+                        a.input
+                    ))),
+                }
+            };
+            let mut planned = plan(
+                PackInput::Table {
+                    table: Cow::Owned(t),
+                    again: regular.then_some(&again as crate::plan::rate::Again),
+                },
+                &settings,
+                &progress,
+            );
             if let Ok(p) = &mut planned
                 && reread
                 && p.encoded.spec.is_lossless()

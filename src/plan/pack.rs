@@ -12,7 +12,10 @@
 use super::budget::Budget;
 use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
 use super::grids::default_grid_spec;
-use super::rate::{Effort, Encoded, Progress, RateOutcome, encode_within};
+use super::rate::{
+    Again, Effort, Encoded, Progress, RateOutcome, encode_within, encode_within_lending,
+    prepare_coefficients,
+};
 use crate::brdf::Brdf;
 use crate::grid::{Grid, InterpSpace, InterpWeight, Quantity, Warp, parse_grid_spec};
 use crate::table::Table;
@@ -37,7 +40,13 @@ pub enum PackInput<'a> {
     /// measured against its own linear interpolation. Given owned, it becomes the planned
     /// table without a copy; borrowed, it is copied once, after the planning (the planner
     /// never holds a second copy of a stored table beside its coefficients and trials).
-    Table(Cow<'a, Table>),
+    Table {
+        table: Cow<'a, Table>,
+        /// The samples again, bit for bit (a re-read of the input file): with it an owned
+        /// table lends its samples' memory to the encoder's decode buffer
+        /// ([`super::rate::encode_within_lending`]).
+        again: Option<Again<'a>>,
+    },
 }
 
 /// The planner's settings.
@@ -88,10 +97,9 @@ const MAX_REFINEMENTS: usize = 3;
 const MAX_REFINED_CELLS: usize = 6_000_000;
 
 /// A grid with its table and estimator, and the table's own error.
-struct Tabulated<'a> {
+struct Tabulated {
     spec: String,
-    /// The input itself for a stored table (borrowed), else a tabulation.
-    table: Cow<'a, Table>,
+    table: Table,
     est: ErrorEstimator,
     floor: Estimate,
     tabulate_s: f64,
@@ -100,45 +108,25 @@ struct Tabulated<'a> {
 /// Plans the smallest file meeting the budget (module doc). Fails with
 /// [`Error::Failure`] (exit 1) naming the grids' own errors when no grid can meet it.
 pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Result<Planned> {
-    let mut timings = Vec::new();
-    let interpolated;
-    let (source, start, refine): (&dyn Brdf, Option<Grid>, bool) = match &input {
-        PackInput::Table(t) => {
-            // The reference is looked up from the input's f32 samples (its exact f64 values,
-            // when it has them, are not read), borrowed.
-            interpolated = crate::table::InterpolatedTable {
-                table: &**t,
-                interp: crate::table::Interp::Linear,
-            };
-            (&interpolated, None, false)
-        }
+    let (source, grid, options) = match input {
+        PackInput::Table { table, again } => return plan_table(table, again, settings, progress),
         PackInput::Source {
             source,
-            grid: Some(g),
-            ..
-        } => (*source, Some(g.clone()), false),
-        PackInput::Source {
-            source, grid: None, ..
-        } => (
-            *source,
-            Some(parse_grid_spec(default_grid_spec(*source))?),
-            true,
-        ),
+            grid,
+            options,
+        } => (source, grid, options),
+    };
+    let mut timings = Vec::new();
+    let (start, refine) = match grid {
+        Some(g) => (g, false),
+        None => (parse_grid_spec(default_grid_spec(source))?, true),
     };
     let t = Instant::now();
     progress("evaluating the source on the estimation and check sets");
-    let pairs = if settings.effort == Effort::Max {
-        2 * ESTIMATE_PAIRS
-    } else {
-        ESTIMATE_PAIRS
-    };
+    let pairs = estimate_pairs(settings.effort);
     // A table stored up to θmax is measured inside that domain only, as `check` measures it:
     // beyond it the table holds no values, and errors there are errors no one asked for.
-    let domain: Option<Grid> = match &input {
-        PackInput::Table(t) => Some(t.grid().clone()),
-        PackInput::Source { .. } => start.clone(),
-    }
-    .filter(|g| g.theta_max().is_some());
+    let domain: Option<Grid> = Some(start.clone()).filter(|g| g.theta_max().is_some());
     let reference = ReferenceSet::new_in(source, pairs, domain.as_ref());
     let check = ReferenceSet::uniform_in(
         source,
@@ -150,86 +138,84 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     // the domain.
     let for_samples = check.len().max(1);
     timings.push(("reference values".to_string(), t.elapsed().as_secs_f64()));
-    let prepare =
-        |grid: Option<&Grid>, timings: &mut Vec<(String, f64)>| -> Result<Tabulated<'_>> {
-            let t = Instant::now();
-            let (spec, table) = match (&input, grid) {
-                (PackInput::Source { options, .. }, Some(g)) => {
-                    progress(&format!("tabulating on {}", g.describe()));
-                    (g.describe(), Cow::Owned(tabulate(source, g, options)?))
+    let prepare = |grid: &Grid, timings: &mut Vec<(String, f64)>| -> Result<Tabulated> {
+        let t = Instant::now();
+        progress(&format!("tabulating on {}", grid.describe()));
+        let (spec, table) = (grid.describe(), tabulate(source, grid, &options)?);
+        let tabulate_s = t.elapsed().as_secs_f64();
+        timings.push((format!("tabulate {spec}"), tabulate_s));
+        let t = Instant::now();
+        progress(&format!("interpolation stencils on {spec}"));
+        let mut table = table;
+        let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
+        let mut floor = est.measure(table.data());
+        // What is interpolated between the samples is measured too, when the planner owns
+        // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
+        // horizon is smooth only in the latter). Tried when the grid's own error is a real
+        // share of the budget; the other stencils cost a fraction of a tabulation.
+        let mut spec = spec;
+        if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
+            // The table's grid as it now interpolates, measured; kept when its own error uses
+            // less of the budget than the best so far.
+            let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
+                let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
+                let f = e.measure(table.data());
+                let better =
+                    floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
+                if better {
+                    (*est, *floor) = (e, f);
                 }
-                // The encoder reads the f32 samples of the input itself.
-                (PackInput::Table(t), _) => (t.grid().describe(), Cow::Borrowed(&**t)),
-                (PackInput::Source { .. }, None) => unreachable!("a source always has a grid"),
+                Ok::<bool, Error>(better)
             };
-            let tabulate_s = t.elapsed().as_secs_f64();
-            timings.push((format!("tabulate {spec}"), tabulate_s));
-            let t = Instant::now();
-            progress(&format!("interpolation stencils on {spec}"));
-            let mut table = table;
-            let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
-            let mut floor = est.measure(table.data());
-            // What is interpolated between the samples is measured too, when the planner owns
-            // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
-            // horizon is smooth only in the latter). Tried when the grid's own error is a real
-            // share of the budget; the other stencils cost a fraction of a tabulation.
-            let mut spec = spec;
-            if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
-                // The table's grid as it now interpolates, measured; kept when its own error uses
-                // less of the budget than the best so far.
-                let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
-                    let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
-                    let f = e.measure(table.data());
-                    let better =
-                        floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
-                    if better {
-                        (*est, *floor) = (e, f);
-                    }
-                    Ok::<bool, Error>(better)
-                };
-                let table = table.to_mut();
-                let plain = table.grid().weight();
-                table.set_interp_weight(match plain {
-                    InterpWeight::None => InterpWeight::Cosine,
-                    InterpWeight::Cosine => InterpWeight::None,
-                });
-                if !closer(table, &mut est, &mut floor)? {
-                    table.set_interp_weight(plain);
-                }
-                // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
-                // flanks fall by decades between samples, which linear interpolation
-                // overestimates and a geometric mean follows.
-                let mut kept = table.grid().space();
-                for log in log_spaces_of(table, &est) {
-                    table.set_interp_space(log);
-                    if closer(table, &mut est, &mut floor)? {
-                        kept = log;
-                    }
-                }
-                table.set_interp_space(kept);
-                spec = table.grid().describe();
+            let table = &mut table;
+            let plain = table.grid().weight();
+            table.set_interp_weight(match plain {
+                InterpWeight::None => InterpWeight::Cosine,
+                InterpWeight::Cosine => InterpWeight::None,
+            });
+            if !closer(table, &mut est, &mut floor)? {
+                table.set_interp_weight(plain);
             }
-            timings.push((
-                format!("stencils and grid error {spec}"),
-                t.elapsed().as_secs_f64(),
-            ));
-            Ok(Tabulated {
-                spec,
-                table,
-                est,
-                floor,
-                tabulate_s,
-            })
-        };
+            // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
+            // flanks fall by decades between samples, which linear interpolation
+            // overestimates and a geometric mean follows.
+            let mut kept = table.grid().space();
+            for log in log_spaces_of(table, &est) {
+                table.set_interp_space(log);
+                if closer(table, &mut est, &mut floor)? {
+                    kept = log;
+                }
+            }
+            table.set_interp_space(kept);
+            spec = table.grid().describe();
+        }
+        timings.push((
+            format!("stencils and grid error {spec}"),
+            t.elapsed().as_secs_f64(),
+        ));
+        Ok(Tabulated {
+            spec,
+            table,
+            est,
+            floor,
+            tabulate_s,
+        })
+    };
     let mut attempts: Vec<GridAttempt> = Vec::new();
-    let mut best: Option<(usize, Cow<'_, Table>, String, Encoded, f64, f64)> = None;
-    let mut current = prepare(start.as_ref(), &mut timings)?;
+    let mut best: Option<(usize, Table, String, Encoded, f64, f64)> = None;
+    let mut current = prepare(&start, &mut timings)?;
     let mut refinements = 0;
     let mut tight_tried = false;
     loop {
         let t = Instant::now();
-        let outcome = encode_within(
-            &current.table,
+        // The tabulation again when the lossless chain is chosen: the rate control decodes
+        // into the table's own memory meanwhile.
+        let g = current.table.grid().clone();
+        let again = || tabulate(source, &g, &options).map(Table::into_samples);
+        let outcome = encode_within_lending(
+            &mut current.table,
+            &again,
+            None,
             &current.est,
             &settings.budget,
             settings.effort,
@@ -314,7 +300,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             if g.cells() > MAX_REFINED_CELLS {
                 continue;
             }
-            let cand = prepare(Some(&g), &mut timings)?;
+            let cand = prepare(&g, &mut timings)?;
             let sh = floor_share(&settings.budget, &cand.floor);
             if next.as_ref().is_none_or(|(b, _)| sh < *b) {
                 next = Some((sh, cand));
@@ -337,7 +323,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 }
             }
             if changed && let Ok(g) = Grid::from_desc(&d) {
-                let cand = prepare(Some(&g), &mut timings)?;
+                let cand = prepare(&g, &mut timings)?;
                 let sh = floor_share(&settings.budget, &cand.floor);
                 if next.as_ref().is_none_or(|(b, _)| sh < *b) {
                     next = Some((sh, cand));
@@ -351,27 +337,6 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     let Some((k, table, grid, encoded, tabulate_s, encode_s)) = best else {
         return Err(Error::Failure(no_grid_message(&settings.budget, &attempts)));
     };
-    // The planned table: a tabulation, or the input itself (moved when owned). A lossless
-    // file carries the input's exact f64 values, as `compress --codec` writes it; a lossy one
-    // does not.
-    let tabulated = match table {
-        Cow::Owned(t) => Some(t),
-        Cow::Borrowed(_) => None,
-    };
-    let table = match (tabulated, input) {
-        (Some(t), _) => t,
-        (None, PackInput::Table(t)) => {
-            let t = t.into_owned();
-            if encoded.spec.is_lossless() {
-                t
-            } else {
-                t.without_exact()
-            }
-        }
-        (None, PackInput::Source { .. }) => {
-            unreachable!("a source's tables are its tabulations")
-        }
-    };
     attempts[k].chosen = true;
     Ok(Planned {
         table,
@@ -381,6 +346,126 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         timings,
         estimate_samples: pairs,
         tabulate_s,
+        encode_s,
+    })
+}
+
+/// Pairs of the estimation set: twice as many at `--effort max`.
+fn estimate_pairs(effort: Effort) -> usize {
+    if effort == Effort::Max {
+        2 * ESTIMATE_PAIRS
+    } else {
+        ESTIMATE_PAIRS
+    }
+}
+
+/// [`plan`] of a table that is its own source (`compress` of a stored table): its own grid,
+/// no refinement, the error measured against its own linear interpolation (its exact f64
+/// values, when it has them, are not read).
+fn plan_table(
+    table: Cow<'_, Table>,
+    again: Option<Again>,
+    settings: &PackSettings,
+    progress: Progress,
+) -> Result<Planned> {
+    let mut timings = Vec::new();
+    let t = Instant::now();
+    progress("evaluating the source on the estimation and check sets");
+    let pairs = estimate_pairs(settings.effort);
+    // A table stored up to θmax is measured inside that domain only, as `check` measures it.
+    let domain = Some(table.grid().clone()).filter(|g| g.theta_max().is_some());
+    let spec = table.grid().describe();
+    let (reference, check) = {
+        let source = crate::table::InterpolatedTable {
+            table: &*table,
+            interp: crate::table::Interp::Linear,
+        };
+        (
+            ReferenceSet::new_in(&source, pairs, domain.as_ref()),
+            ReferenceSet::uniform_in(
+                &source,
+                settings.check_samples,
+                settings.check_seed,
+                domain.as_ref(),
+            ),
+        )
+    };
+    timings.push(("reference values".to_string(), t.elapsed().as_secs_f64()));
+    // When the encoder may lend the table's samples, its coefficients are made first: the
+    // estimator's stencils (35 MB for the 52 MiB table of docs/robustness.md) are not held
+    // beside the DCT's planes, the peak of the encode.
+    let prepared = match (&table, again) {
+        (Cow::Owned(t), Some(_)) => {
+            prepare_coefficients(t, reference.epsilon(), settings.effort, progress)
+        }
+        _ => None,
+    };
+    let (est, floor) = {
+        let t = Instant::now();
+        progress(&format!("interpolation stencils on {spec}"));
+        let est = ErrorEstimator::new(&table, &reference, Some(&check), check.len().max(1))?;
+        // The estimator keeps what it needs of the sets (reordered copies).
+        drop((reference, check));
+        let floor = est.measure(table.data());
+        timings.push((
+            format!("stencils and grid error {spec}"),
+            t.elapsed().as_secs_f64(),
+        ));
+        (est, floor)
+    };
+    let t = Instant::now();
+    let mut table = table;
+    let outcome = match (&mut table, again) {
+        (Cow::Owned(t), Some(again)) => encode_within_lending(
+            t,
+            again,
+            prepared,
+            &est,
+            &settings.budget,
+            settings.effort,
+            progress,
+        )?,
+        (t, _) => encode_within(t, &est, &settings.budget, settings.effort, progress)?,
+    };
+    let encode_s = t.elapsed().as_secs_f64();
+    let mut attempt = GridAttempt {
+        grid: spec.clone(),
+        cells: table.grid().cells(),
+        floor,
+        payload_bytes: None,
+        tabulate_s: 0.0,
+        encode_s,
+        chosen: false,
+    };
+    let encoded = match outcome {
+        RateOutcome::GridTooCoarse { .. } => {
+            return Err(Error::Failure(no_grid_message(
+                &settings.budget,
+                &[attempt],
+            )));
+        }
+        RateOutcome::Encoded(e) => *e,
+    };
+    timings.extend(encoded.timings.iter().cloned());
+    attempt.payload_bytes = Some(encoded.payload.len());
+    attempt.chosen = true;
+    // A borrowed input is copied once, now that the planner's arrays are freed. A lossless
+    // file carries the input's exact f64 values, as `compress --codec` writes it; a lossy one
+    // does not.
+    let table = table.into_owned();
+    let table = if encoded.spec.is_lossless() {
+        table
+    } else {
+        table.without_exact()
+    };
+    Ok(Planned {
+        table,
+        grid: spec,
+        encoded,
+        attempts: vec![attempt],
+        timings,
+        estimate_samples: pairs,
+        tabulate_s: 0.0,
         encode_s,
     })
 }

@@ -157,6 +157,10 @@ pub enum RateOutcome {
 /// Called with the name of each stage as it starts.
 pub type Progress<'a> = &'a (dyn Fn(&str) + Sync);
 
+/// Gives a lent table's samples back, bit for bit, when the lossless chain is chosen (a
+/// re-read of the input file, a tabulation again): see [`encode_within_lending`].
+pub type Again<'a> = &'a dyn Fn() -> Result<Vec<f32>>;
+
 /// The smallest file of `table` whose error against the estimator's source meets `budget`
 /// (upper confidence values, [`super::estimate`]). See the module doc.
 pub fn encode_within(
@@ -166,28 +170,153 @@ pub fn encode_within(
     effort: Effort,
     progress: Progress,
 ) -> Result<RateOutcome> {
+    encode(Access::Shared(table), None, est, budget, effort, progress)
+}
+
+/// [`encode_within`] without a decode buffer of its own: once the coefficients are made,
+/// the table lends its samples' memory to the decoded candidates (at the default and fast
+/// efforts, where one transform serves every variant; `max` keeps them). On return the table
+/// holds what the chosen file decodes to: the decode of the lossy candidate, or for the
+/// lossless chain the samples `again` gives (checked against a fingerprint of the original
+/// ones). A table-sized array less at the peak: 50 MB of the 52 MiB table of
+/// docs/robustness.md. On an error the table's samples are unspecified (finite, 0 at invalid
+/// cells).
+///
+/// `prepared`, when given, holds the coefficients [`prepare_coefficients`] made from this
+/// table before the estimator was built (so that its stencils were not held beside the
+/// DCT's planes); otherwise they are made here.
+pub fn encode_within_lending(
+    table: &mut Table,
+    again: Again,
+    prepared: Option<Prepared>,
+    est: &ErrorEstimator,
+    budget: &Budget,
+    effort: Effort,
+    progress: Progress,
+) -> Result<RateOutcome> {
+    encode(
+        Access::Lend(table, again),
+        prepared,
+        est,
+        budget,
+        effort,
+        progress,
+    )
+}
+
+/// The curve's transform and the DCT coefficients of one ε scale, made ahead of the
+/// estimator ([`prepare_coefficients`]).
+pub struct Prepared {
+    scale: f64,
+    epsilon: f64,
+    transform: Transform,
+    coefs: Vec<Vec<f32>>,
+    max_coef: f64,
+    seconds: f64,
+}
+
+/// The coefficients [`encode_within_lending`] starts from at `effort`, made from `table` and
+/// the metrics' ε of the estimation set (`ReferenceSet::epsilon`, which the estimator built
+/// from that set reports too); `None` at `max` effort, which makes several.
+pub fn prepare_coefficients(
+    table: &Table,
+    epsilon: f64,
+    effort: Effort,
+    progress: Progress,
+) -> Option<Prepared> {
+    let variants = effort.variants();
+    let scale = variants[0].eps_scale;
+    if variants
+        .iter()
+        .any(|v| v.eps_scale != scale || v.refine > 0)
+    {
+        return None;
+    }
+    let t = Instant::now();
+    let (transform, coefs, max_coef) =
+        transform_and_coefficients(table, epsilon, scale, has_negative(table), progress);
+    Some(Prepared {
+        scale,
+        epsilon,
+        transform,
+        coefs,
+        max_coef,
+        seconds: t.elapsed().as_secs_f64(),
+    })
+}
+
+/// Whether a valid value is negative (a noisy measured fit: the curve keeps signs).
+fn has_negative(table: &Table) -> bool {
+    let c = table.channels().len();
+    table
+        .data()
+        .chunks_exact(c)
+        .zip(table.valid())
+        .any(|(v, &ok)| ok && v.iter().any(|&x| x < 0.0))
+}
+
+/// The table as [`encode`] may use it.
+enum Access<'t> {
+    Shared(&'t Table),
+    Lend(&'t mut Table, Again<'t>),
+}
+
+impl Access<'_> {
+    fn table(&self) -> &Table {
+        match self {
+            Access::Shared(t) => t,
+            Access::Lend(t, _) => t,
+        }
+    }
+}
+
+/// A fingerprint of a table's samples and validity (FNV-1a over the bits, in fixed chunks
+/// combined in order): samples given back must be the ones lent.
+fn fingerprint(table: &Table) -> u64 {
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+    const CHUNK: usize = 1 << 16;
+    let fnv = |words: &mut dyn Iterator<Item = u32>| {
+        words.fold(0xcbf2_9ce4_8422_2325u64, |h, w| {
+            (h ^ w as u64).wrapping_mul(PRIME)
+        })
+    };
+    let parts: Vec<u64> = table
+        .data()
+        .par_chunks(CHUNK)
+        .map(|ch| fnv(&mut ch.iter().map(|x| x.to_bits())))
+        .collect();
+    let valid = fnv(&mut table.valid().iter().map(|&v| v as u32));
+    fnv(&mut parts
+        .iter()
+        .chain(std::iter::once(&valid))
+        .flat_map(|p| [*p as u32, (*p >> 32) as u32]))
+}
+
+fn encode(
+    mut access: Access,
+    mut prepared: Option<Prepared>,
+    est: &ErrorEstimator,
+    budget: &Budget,
+    effort: Effort,
+    progress: Progress,
+) -> Result<RateOutcome> {
     let mut timings = Vec::new();
     let t0 = Instant::now();
     progress("measuring the grid's own error");
-    let floor = est.measure(table.data());
+    let floor = est.measure(access.table().data());
     timings.push(("grid error".to_string(), t0.elapsed().as_secs_f64()));
     if !accepts(budget, &floor) {
         return Ok(RateOutcome::GridTooCoarse {
             floor: Box::new(floor),
         });
     }
-    let layout = Layout::of(table);
-    let c = table.channels().len();
+    let values = access.table().data().len();
     let mut trials = Vec::new();
     let mut best: Option<(CodecSpec, Vec<u8>, Estimate)> = None;
     // The decode buffer is allocated when the first candidate is decoded (after the forward
-    // DCT, whose planes are the larger transient).
+    // DCT, whose planes are the larger transient), or is the lent samples.
     let mut decoded: Vec<f32> = Vec::new();
-    let has_negative = table
-        .data()
-        .chunks_exact(c)
-        .zip(table.valid())
-        .any(|(v, &ok)| ok && v.iter().any(|&x| x < 0.0));
+    let has_negative = has_negative(access.table());
     let variants = effort.variants();
     let mut by_scale: Vec<f64> = Vec::new();
     for v in &variants {
@@ -195,47 +324,42 @@ pub fn encode_within(
             by_scale.push(v.eps_scale);
         }
     }
+    // The samples are read once per ε scale and by a refined fill: lent only when neither
+    // reads them again.
+    let lend = matches!(access, Access::Lend(..))
+        && by_scale.len() == 1
+        && variants.iter().all(|v| v.refine == 0);
+    let lent_print = lend.then(|| fingerprint(access.table()));
     for scale in by_scale {
         let t = Instant::now();
-        progress("transforming (log curve, colour)");
-        let eps = (scale * est.epsilon()).max(f64::MIN_POSITIVE);
-        // A table with negative values (a noisy measured fit) keeps their sign: the metrics
-        // compare them with the source's like any other value, and the log curve would
-        // decode them as 0 (a relative error of 1 at each).
-        let curve = if has_negative {
-            Curve::SignedLog { eps: vec![eps; c] }
-        } else {
-            Curve::Log { eps: vec![eps; c] }
+        let made = prepared
+            .take()
+            .filter(|p| p.scale == scale && p.epsilon == est.epsilon());
+        let seconds_before = made.as_ref().map_or(0.0, |p| p.seconds);
+        let (transform, coefs, max_coef) = match made {
+            Some(p) => (p.transform, p.coefs, p.max_coef),
+            None => transform_and_coefficients(
+                access.table(),
+                est.epsilon(),
+                scale,
+                has_negative,
+                progress,
+            ),
         };
-        let transform = transform_with_curve(table, curve, true, None);
-        // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid)
-        // and the estimator's construction are freed: handed back before the DCT's planes.
-        crate::memory::release_free_memory();
-        progress("forward DCT");
-        let dims = table.grid().shape();
-        // The coefficients are kept in f32 for the rate control (half the memory: 17.5 MB
-        // instead of 35 MB on the MERL grid): the quantizer widens each back to f64 exactly,
-        // so a code differs from the f64 coefficient's only where the f32 rounding (a relative
-        // 6e-8) crosses a rounding or dead-zone boundary. The largest magnitude, which sets
-        // the bisection's range of steps, is taken from the f64 values. Each plane is
-        // made, transformed in its own array and narrowed one at a time.
-        let mut max_coef = 0.0f64;
-        let coefs: Vec<Vec<f32>> = (0..c)
-            .map(|k| {
-                let f = dct::forward_owned(filled_plane(table, &transform, k), &dims);
-                max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs()));
-                f.iter().map(|&c| c as f32).collect()
-            })
-            .collect();
         if decoded.is_empty() {
-            decoded = vec![0f32; table.data().len()];
+            decoded = match (&mut access, lend) {
+                (Access::Lend(t, _), true) => t.lend_samples(),
+                _ => vec![0f32; values],
+            };
         }
         timings.push((
             format!("transform + DCT (ε×{scale})"),
-            t.elapsed().as_secs_f64(),
+            seconds_before + t.elapsed().as_secs_f64(),
         ));
         for v in variants.iter().filter(|v| v.eps_scale == scale) {
             let t = Instant::now();
+            let table = access.table();
+            let layout = Layout::of(table);
             let mut ctl = Control {
                 table,
                 est,
@@ -250,7 +374,16 @@ pub fn encode_within(
                 trials: &mut trials,
                 progress,
             };
-            if let Some((spec, payload, e)) = ctl.run(effort.iterations())?
+            let found = match ctl.run(effort.iterations()) {
+                Ok(f) => f,
+                Err(e) => {
+                    if let (Access::Lend(t, _), true) = (&mut access, lend) {
+                        t.give_back_samples(decoded);
+                    }
+                    return Err(e);
+                }
+            };
+            if let Some((spec, payload, e)) = found
                 && best.as_ref().is_none_or(|b| payload.len() < b.1.len())
             {
                 best = Some((spec, payload, e));
@@ -261,6 +394,41 @@ pub fn encode_within(
             ));
         }
     }
+    if let (Access::Lend(t, again), true) = (&mut access, lend) {
+        match &best {
+            // The chosen file's decode: the last candidate decoded may be another one.
+            Some((spec, payload, _)) => {
+                let decodes = spec.decode_into_with(
+                    payload,
+                    &Layout::of(t),
+                    &mut decoded,
+                    &mut DecodeScratch::default(),
+                );
+                t.give_back_samples(decoded);
+                decodes?;
+            }
+            None => {
+                drop(decoded);
+                crate::memory::release_free_memory();
+                progress("reading the samples again for the lossless chain");
+                let (back, read) = match again() {
+                    Ok(b) => (b, Ok(())),
+                    Err(e) => (Vec::new(), Err(e)),
+                };
+                let same_size = back.len() == values;
+                t.give_back_samples(back);
+                read?;
+                if !same_size || Some(fingerprint(t)) != lent_print {
+                    return Err(Error::Failure(
+                        "the table's samples read again differ from the ones encoded (the \
+                         input changed while it was being compressed?); no file written"
+                            .to_string(),
+                    ));
+                }
+            }
+        }
+    }
+    let table = access.table();
     let (spec, payload, estimate) = match best {
         Some(b) => b,
         None => {
@@ -284,6 +452,50 @@ pub fn encode_within(
         trials,
         timings,
     })))
+}
+
+/// The curve's transform at `scale` × the metrics' ε `epsilon` and its DCT coefficients in
+/// f32, with
+/// the largest |c| of the f64 ones.
+fn transform_and_coefficients(
+    table: &Table,
+    epsilon: f64,
+    scale: f64,
+    has_negative: bool,
+    progress: Progress,
+) -> (Transform, Vec<Vec<f32>>, f64) {
+    let c = table.channels().len();
+    progress("transforming (log curve, colour)");
+    let eps = (scale * epsilon).max(f64::MIN_POSITIVE);
+    // A table with negative values (a noisy measured fit) keeps their sign: the metrics
+    // compare them with the source's like any other value, and the log curve would decode
+    // them as 0 (a relative error of 1 at each).
+    let curve = if has_negative {
+        Curve::SignedLog { eps: vec![eps; c] }
+    } else {
+        Curve::Log { eps: vec![eps; c] }
+    };
+    let transform = transform_with_curve(table, curve, true, None);
+    // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid) and
+    // the estimator's construction are freed: handed back before the DCT's planes.
+    crate::memory::release_free_memory();
+    progress("forward DCT");
+    let dims = table.grid().shape();
+    // The coefficients are kept in f32 for the rate control (half the memory: 17.5 MB
+    // instead of 35 MB on the MERL grid): the quantizer widens each back to f64 exactly, so
+    // a code differs from the f64 coefficient's only where the f32 rounding (a relative 6e-8)
+    // crosses a rounding or dead-zone boundary. The largest magnitude, which sets the
+    // bisection's range of steps, is taken from the f64 values. Each plane is made,
+    // transformed in its own array and narrowed one at a time.
+    let mut max_coef = 0.0f64;
+    let coefs: Vec<Vec<f32>> = (0..c)
+        .map(|k| {
+            let f = dct::forward_owned(filled_plane(table, &transform, k), &dims);
+            max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs()));
+            f.iter().map(|&c| c as f32).collect()
+        })
+        .collect();
+    (transform, coefs, max_coef)
 }
 
 /// The state of one variant's rate control.
@@ -724,6 +936,91 @@ mod tests {
             "{kept} of {negative} negative values kept"
         );
         assert_eq!(est.measure(&back), e.estimate);
+    }
+
+    #[test]
+    fn a_lent_table_gets_back_what_the_chosen_file_decodes_to() {
+        // A table that is its own source (`compress`): lending its samples to the decode
+        // buffer changes neither the file nor its measurement, and afterwards the table holds
+        // the chosen file's decode. With a budget no lossy step meets, the lossless chain
+        // takes the samples `again` gives, and refuses ones that differ from those lent.
+        let m = Model::parse("lambert:albedo=0.1+ggx:alpha=0.2,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:16x12x24,warp=sqrt/linear/linear").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        let source = crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: crate::table::Interp::Linear,
+        };
+        let reference = ReferenceSet::new(&source, 1 << 14);
+        let est = ErrorEstimator::new(&t, &reference, None, 1 << 14).unwrap();
+        let original = t.data().to_vec();
+        let again = || -> Result<Vec<f32>> { Ok(original.clone()) };
+        let budget = Budget::parse("log_rmse=0.01,p99_rel_core=0.2").unwrap();
+        let RateOutcome::Encoded(shared) =
+            encode_within(&t, &est, &budget, Effort::Default, &|_| {}).unwrap()
+        else {
+            panic!("the table is its own source");
+        };
+        for prepared in [
+            None,
+            prepare_coefficients(&t, reference.epsilon(), Effort::Default, &|_| {}),
+        ] {
+            let mut lent = t.clone();
+            let RateOutcome::Encoded(e) = encode_within_lending(
+                &mut lent,
+                &again,
+                prepared,
+                &est,
+                &budget,
+                Effort::Default,
+                &|_| {},
+            )
+            .unwrap() else {
+                panic!("the table is its own source");
+            };
+            assert_eq!(e.payload, shared.payload);
+            assert_eq!(e.estimate, shared.estimate);
+            assert!(!e.spec.is_lossless());
+            let back = e.spec.decode(&e.payload, &Layout::of(&t)).unwrap();
+            assert!(
+                lent.data()
+                    .iter()
+                    .zip(&back)
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+            );
+            assert_eq!(lent.valid(), t.valid());
+        }
+        // Below anything a lossy step reaches: the lossless chain, with the samples again.
+        let tight = Budget::parse("log_rmse=1e-12").unwrap();
+        let mut lent = t.clone();
+        let RateOutcome::Encoded(e) =
+            encode_within_lending(&mut lent, &again, None, &est, &tight, Effort::Fast, &|_| {})
+                .unwrap()
+        else {
+            panic!("the table meets any budget against itself");
+        };
+        assert!(e.spec.is_lossless(), "{:?}", e.spec);
+        assert_eq!(lent, t);
+        assert_eq!(e.payload, e.spec.encode(&t).unwrap());
+        let changed = || -> Result<Vec<f32>> {
+            let mut v = original.clone();
+            let k = t.valid().iter().position(|&ok| ok).unwrap() * 3;
+            v[k] *= 1.5;
+            Ok(v)
+        };
+        let mut lent = t.clone();
+        let err = encode_within_lending(
+            &mut lent,
+            &changed,
+            None,
+            &est,
+            &tight,
+            Effort::Fast,
+            &|_| {},
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("differ"), "{err}");
+        assert_eq!(lent.data().len(), t.data().len());
     }
 
     #[test]

@@ -658,20 +658,42 @@ fn compress(
                         check_seed: seed,
                     };
                     let opened;
+                    // A table file is read again if the lossless chain is chosen, so that the
+                    // encoder can decode its candidates into the table's memory meanwhile.
+                    let again = |s: &str| -> Result<Vec<f32>> {
+                        match CoreSource::open(s)? {
+                            CoreSource::Table(t) => Ok(t.into_samples()),
+                            _ => Err(Error::Failure(format!(
+                                "{s}: the file changed while it was being compressed"
+                            ))),
+                        }
+                    };
+                    let spec_again;
                     let input = match &source {
                         SourceArg::Spec(s) => match CoreSource::open(s)? {
-                            CoreSource::Table(t) => PackInput::Table(Cow::Owned(t)),
+                            CoreSource::Table(t) => {
+                                let regular = std::fs::metadata(s).is_ok_and(|m| m.is_file());
+                                spec_again = move || again(s);
+                                PackInput::Table {
+                                    table: Cow::Owned(t),
+                                    again: regular
+                                        .then_some(&spec_again as brdfpack_core::plan::rate::Again),
+                                }
+                            }
                             other => {
                                 opened = other.into_brdf(Lookup::Linear)?;
                                 source_input(opened.as_ref(), grid)?
                             }
                         },
                         SourceArg::Object(e) => match e.table() {
-                            Some(t) => PackInput::Table(Cow::Borrowed(t)),
+                            Some(t) => PackInput::Table {
+                                table: Cow::Borrowed(t),
+                                again: None,
+                            },
                             None => source_input(e.brdf(), grid)?,
                         },
                     };
-                    if let (PackInput::Table(_), Some(g)) = (&input, grid) {
+                    if let (PackInput::Table { .. }, Some(g)) = (&input, grid) {
                         return Err(already_a_table(g));
                     }
                     let planned = plan(input, &settings, &|_| {})?;
