@@ -1251,7 +1251,7 @@ fn peak_memory_stays_within_twice_the_table_plus_64_mb() {
         // The planner: the encoder decodes its candidates into the table's own samples
         // (read again from the file if the lossless chain is chosen), makes the
         // coefficients before the estimator's stencils, and quantizes without a plane of
-        // codes (226 MiB before; 159–163 MiB after, release).
+        // codes (217–219 MiB before, 71f6271).
         &[
             "compress",
             "big.bpk",
@@ -1261,7 +1261,17 @@ fn peak_memory_stays_within_twice_the_table_plus_64_mb() {
             "c.bpk",
         ],
     ] {
-        let (code, kib) = peak_rss_kib(d, args);
+        // `compress` with one worker thread: with two, its peak depends on timing (which
+        // worker's arena serves an allocation, when freed blocks are handed back): 162,700 to
+        // 171,232 KiB over ten runs of the debug build, against the bound of 172,032. With
+        // one it is 166,100–166,316 KiB (six runs), so the assertion tracks the planner's
+        // arrays, not the scheduler. The other commands are measured as users run them.
+        let env: &[(&str, &str)] = if args[0] == "compress" {
+            &[("RAYON_NUM_THREADS", "1")]
+        } else {
+            &[]
+        };
+        let (code, kib) = peak_rss_kib_with(d, env, args);
         assert_eq!(code, 0, "{args:?}");
         println!(
             "{args:?}: peak RSS {} MiB (bound {} MiB)",
