@@ -1404,38 +1404,6 @@ impl Stencil {
         }
     }
 
-    /// The stencils of the pairs in `order` (indices into this stencil's pairs): pair k of
-    /// the result is pair `order[k]` of this one.
-    ///
-    /// # Panics
-    /// When an index is out of range (a caller bug).
-    pub fn reordered(&self, order: &[usize]) -> Stencil {
-        let mut out = Stencil {
-            channels: self.channels,
-            cells_in_grid: self.cells_in_grid,
-            ends: Vec::with_capacity(order.len()),
-            cells: Vec::with_capacity(self.cells.len()),
-            weights: Vec::with_capacity(self.weights.len()),
-            after: Vec::with_capacity(order.len()),
-            log: self.log,
-            pre: Vec::with_capacity(self.pre.len()),
-            post: Vec::with_capacity(self.post.len()),
-        };
-        for &p in order {
-            let start = if p == 0 { 0 } else { self.ends[p - 1] };
-            let end = self.ends[p];
-            out.cells.extend_from_slice(&self.cells[start..end]);
-            out.weights.extend_from_slice(&self.weights[start..end]);
-            out.ends.push(out.cells.len());
-            out.after.push(self.after[p]);
-            if self.log.is_some() {
-                out.pre.extend_from_slice(&self.pre[start..end]);
-                out.post.push(self.post[p]);
-            }
-        }
-        out
-    }
-
     /// The values of a table with these stencils' grid, validity and channel count holding
     /// `data` (cell-major): `out[p·C + ch]`, bit-identical to [`Table::eval_into`].
     ///
@@ -1707,6 +1675,47 @@ mod tests {
     use crate::grid::parse_grid_spec;
     use crate::math::PI;
     use crate::tabulate::{TabulateOptions, tabulate};
+
+    #[test]
+    fn the_stencils_of_pairs_in_another_order_are_the_same_stencils_in_that_order() {
+        // The planner's estimators make the stencils of their pairs once in the set's order
+        // (to find the order that walks the table in memory) and again in that order: a
+        // pair's stencil must depend on that pair alone, for every interpolation the planner
+        // measures (linear, cosine-weighted, log space) and across the chunks stencils are
+        // made in (4096 pairs).
+        let m = crate::model::Model::parse("lambert:albedo=0.2+ggx:alpha=0.1,fresnel=au").unwrap();
+        let base = parse_grid_spec("halfdiff3:24x12x32,warp=sqrt/linear/linear").unwrap();
+        let mut t = tabulate(&m, &base, &TabulateOptions::default()).unwrap();
+        let pairs: Vec<(Vec3, Vec3)> = crate::check::uniform_pairs(7).take(10_000).collect();
+        // A fixed permutation: every 7th pair first, then the rest reversed.
+        let mut order: Vec<usize> = (0..pairs.len()).step_by(7).collect();
+        order.extend((0..pairs.len()).rev().filter(|p| p % 7 != 0));
+        let permuted: Vec<(Vec3, Vec3)> = order.iter().map(|&p| pairs[p]).collect();
+        for setup in 0..3 {
+            match setup {
+                1 => t.set_interp_weight(crate::grid::InterpWeight::Cosine),
+                2 => t.set_interp_space(crate::grid::InterpSpace::log(1e-3).unwrap()),
+                _ => {}
+            }
+            let mut a = vec![0.0; pairs.len() * 3];
+            t.stencil(&pairs, Interp::Linear).apply(t.data(), &mut a);
+            let mut b = vec![0.0; pairs.len() * 3];
+            t.stencil(&permuted, Interp::Linear).apply(t.data(), &mut b);
+            for (k, &p) in order.iter().enumerate() {
+                assert_eq!(
+                    a[p * 3..p * 3 + 3]
+                        .iter()
+                        .map(|x| x.to_bits())
+                        .collect::<Vec<_>>(),
+                    b[k * 3..k * 3 + 3]
+                        .iter()
+                        .map(|x| x.to_bits())
+                        .collect::<Vec<_>>(),
+                    "setup {setup}, pair {p}"
+                );
+            }
+        }
+    }
 
     /// f = (1 + 0.5 wi·wo) / cos θo: finite f·cos θo at the horizon, as RGL files are
     /// (docs/rgl.md).

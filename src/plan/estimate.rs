@@ -198,17 +198,23 @@ impl Scored {
         // A set holds at most MAX_SAMPLES (< 2³²) pairs.
         let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
         order.sort_by_key(|&p| (stencil.first_cell(p as usize), p));
+        // The stencils again, of the pairs in their new order, rather than a reordered copy:
+        // a pair's stencil depends on that pair alone (`Table::stencil`; tested in
+        // `table::tests`), and the set's two stencils are not held at once (12.5 MB each for
+        // the estimation set on the 52 MiB table of docs/robustness.md: the high-water mark
+        // of `compress` was reached here).
+        drop(stencil);
         let cos_i = order.iter().map(|&p| set.pairs[p as usize].0.z).collect();
         let cos_o = order.iter().map(|&p| set.pairs[p as usize].1.z).collect();
+        let ordered: Vec<(Vec3, Vec3)> = order.iter().map(|&p| set.pairs[p as usize]).collect();
         drop(set);
+        let stencil = table.stencil(&ordered, Interp::Linear);
+        drop(ordered);
         let mut values = Vec::with_capacity(reference.values.len());
         for &p in &order {
             let p = p as usize;
             values.extend_from_slice(&reference.values[p * c..(p + 1) * c]);
         }
-        let order_usize: Vec<usize> = order.iter().map(|&p| p as usize).collect();
-        let stencil = stencil.reordered(&order_usize);
-        drop(order_usize);
         Scored {
             pairs: ScoredPairs {
                 cos_i,
