@@ -124,18 +124,11 @@ pub(crate) fn apply_axis_f64_in_place(data: &mut [f64], dims: &[usize], axis: us
         return;
     }
     if inner == 1 {
-        // As in `apply_axis_f64_into`: LANES lines transposed into the worker's buffer (lanes
-        // past the last line keep an earlier block's values and are never stored), then
-        // written back over themselves.
+        // As in `apply_axis_f64_into`, then written back over the lines themselves.
         data.par_chunks_mut(LANES * n).for_each_init(
             || vec![0.0; n * LANES],
             |t, dst| {
-                let lines = dst.len() / n;
-                for l in 0..lines {
-                    for (j, v) in dst[l * n..(l + 1) * n].iter().enumerate() {
-                        t[j * LANES + l] = *v;
-                    }
-                }
+                let lines = transpose_lanes(dst, n, t);
                 lines_block(mat, n, n, t, lines, dst);
             },
         );
@@ -172,6 +165,19 @@ pub(crate) fn apply_axis_f64_in_place(data: &mut [f64], dims: &[usize], axis: us
             }
         },
     );
+}
+
+/// Copies the ≤ LANES contiguous lines of length `n` in `block` into `t` (n × LANES), the
+/// j-th input of every line side by side, and returns how many lines there were. Lanes past
+/// the last line keep an earlier block's values: their sums are never stored.
+fn transpose_lanes(block: &[f64], n: usize, t: &mut [f64]) -> usize {
+    let lines = block.len() / n;
+    for (l, line) in block.chunks_exact(n).enumerate() {
+        for (j, v) in line.iter().enumerate() {
+            t[j * LANES + l] = *v;
+        }
+    }
+    lines
 }
 
 /// Output columns of one tile of [`apply_axis_f64`] along a strided axis, and the rows and
@@ -226,12 +232,7 @@ pub(crate) fn apply_axis_f64_into(
             || vec![0.0; n * LANES],
             |t, (b, dst)| {
                 let lines = dst.len() / m;
-                for l in 0..lines {
-                    let src = &input[(b * LANES + l) * n..(b * LANES + l + 1) * n];
-                    for (j, v) in src.iter().enumerate() {
-                        t[j * LANES + l] = *v;
-                    }
-                }
+                transpose_lanes(&input[b * LANES * n..(b * LANES + lines) * n], n, t);
                 lines_block(mat, n, m, t, lines, dst);
             },
         );

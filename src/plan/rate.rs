@@ -273,23 +273,28 @@ impl Access<'_> {
 /// A fingerprint of a table's samples and validity (FNV-1a over the bits, in fixed chunks
 /// combined in order): samples given back must be the ones lent.
 fn fingerprint(table: &Table) -> u64 {
-    const PRIME: u64 = 0x0000_0100_0000_01b3;
     const CHUNK: usize = 1 << 16;
-    let fnv = |words: &mut dyn Iterator<Item = u32>| {
-        words.fold(0xcbf2_9ce4_8422_2325u64, |h, w| {
-            (h ^ w as u64).wrapping_mul(PRIME)
-        })
-    };
     let parts: Vec<u64> = table
         .data()
         .par_chunks(CHUNK)
-        .map(|ch| fnv(&mut ch.iter().map(|x| x.to_bits())))
+        .map(|ch| fnv1a(ch.iter().map(|x| x.to_bits())))
         .collect();
-    let valid = fnv(&mut table.valid().iter().map(|&v| v as u32));
-    fnv(&mut parts
-        .iter()
-        .chain(std::iter::once(&valid))
-        .flat_map(|p| [*p as u32, (*p >> 32) as u32]))
+    let valid = fnv1a(table.valid().iter().map(|&v| v as u32));
+    fnv1a(
+        parts
+            .iter()
+            .chain(std::iter::once(&valid))
+            .flat_map(|p| [*p as u32, (*p >> 32) as u32]),
+    )
+}
+
+/// 64-bit FNV-1a over 32-bit words (generic, so that the loop over a table's samples is not
+/// a dynamic call per word).
+fn fnv1a(words: impl Iterator<Item = u32>) -> u64 {
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+    words.fold(0xcbf2_9ce4_8422_2325u64, |h, w| {
+        (h ^ w as u64).wrapping_mul(PRIME)
+    })
 }
 
 fn encode(
