@@ -123,7 +123,8 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
     let req = CodecRequest::parse(a.codec.as_deref().unwrap_or("lossless"))?;
     let spec = req.resolve(&table)?;
     let measured = Evaluator::new(&table, &set)?.measure(&spec)?;
-    let bytes = native::to_bytes(&table, &measured.spec)?;
+    // The payload measured is the one written (encoding it again took as long again).
+    let bytes = native::to_bytes_with_payload(&table, &measured.spec, &measured.payload)?;
     atomic::write_output(&a.output, &bytes)?;
     a.depfile.write(&[a.output.as_path()], &reads)?;
     let raw = table.data().len() * 4;

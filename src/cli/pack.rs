@@ -128,13 +128,33 @@ struct BudgetReport {
 
 /// The file to write and how it was made.
 struct Packed {
-    table: crate::table::Table,
+    /// What the report says of the table (the table itself is freed once encoded).
+    table: TableFacts,
     codec: CodecSpec,
     bytes: Vec<u8>,
     tabulate_s: f64,
     encode_s: f64,
     budget: Option<BudgetReport>,
     timings: Vec<(String, f64)>,
+}
+
+/// The encoded table's facts for the report.
+struct TableFacts {
+    grid: crate::grid::Grid,
+    channels: crate::brdf::Channels,
+    samples: usize,
+    valid_cells: usize,
+}
+
+impl TableFacts {
+    fn of(t: &crate::table::Table) -> TableFacts {
+        TableFacts {
+            grid: t.grid().clone(),
+            channels: t.channels().clone(),
+            samples: t.data().len(),
+            valid_cells: t.valid_count(),
+        }
+    }
 }
 
 pub fn run(a: PackArgs) -> anyhow::Result<i32> {
@@ -147,9 +167,25 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         Some(s) => a.symmetry.apply(Source::open_recording(s, &mut reads)?),
         None => Source::Model(Model::default_material()),
     };
+    // A table read from a regular file can be read again: on a fixed grid the planner does
+    // not hold it beside the coefficients, and the check reads it again (it is as large as
+    // the table planned).
+    let reopenable = matches!(source, Source::Table(_))
+        && a.source
+            .as_deref()
+            .is_some_and(|s| s != "-" && std::fs::metadata(s).is_ok_and(|m| m.is_file()));
     let src = source.into_brdf(Lookup::Linear)?;
     let full_channels = src.channels().clone();
     let src = scene.restrict_source(src)?;
+    let source_name = src.describe();
+    let open = || -> crate::Result<Box<dyn crate::brdf::Brdf>> {
+        let spec = a.source.as_deref().unwrap_or_default();
+        scene.restrict_source(
+            a.symmetry
+                .apply(Source::open(spec)?)
+                .into_brdf(Lookup::Linear)?,
+        )
+    };
     let mut symmetry = a.symmetry.clone();
     if scene.isotropic == Some(true) {
         symmetry.allow_anisotropic = true;
@@ -175,23 +211,32 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         (None, Some(_)) => Some(scene.restrict_grid(&default_grid(src.as_ref()))?),
         (None, None) => None,
     };
-    let packed = match &budget {
+    let (packed, held) = match &budget {
         Some(budget) => {
             let progress = |stage: &str| bar.stage(stage);
-            let planned = plan(
-                PackInput::Source {
-                    source: src.as_ref(),
+            let settings = PackSettings {
+                budget: budget.clone(),
+                effort,
+                check_samples: a.samples,
+                check_seed: a.seed,
+            };
+            let options = symmetry.options(None);
+            // Planned from a table file, the source is read by the planner (and again by the
+            // check).
+            let held = (!reopenable).then_some(src);
+            let input = match held.as_deref() {
+                Some(source) => PackInput::Source {
+                    source,
                     grid,
-                    options: symmetry.options(None),
+                    options,
                 },
-                &PackSettings {
-                    budget: budget.clone(),
-                    effort,
-                    check_samples: a.samples,
-                    check_seed: a.seed,
+                None => PackInput::Reopened {
+                    open: &open,
+                    grid,
+                    options,
                 },
-                &progress,
-            );
+            };
+            let planned = plan(input, &settings, &progress);
             bar.finish();
             let planned = planned?;
             // The planner's estimation sets, stencils and coefficients are freed: handed back before
@@ -202,27 +247,30 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
                 &planned.encoded.spec,
                 &planned.encoded.payload,
             )?;
-            Packed {
-                codec: planned.encoded.spec.clone(),
-                bytes,
-                tabulate_s: planned.tabulate_s,
-                encode_s: planned.encode_s,
-                budget: Some(BudgetReport {
-                    bounds: budget.bounds.clone(),
-                    default: default_budget,
-                    effort,
-                    against: "source",
-                    file: planned.encoded.estimate.clone(),
-                    grid_alone: planned.encoded.floor.clone(),
-                    estimate_samples: planned.estimate_samples,
-                    confidence_z: CONFIDENCE_Z,
-                    samples: a.samples,
-                    seed: a.seed,
-                    grids: planned.attempts,
-                }),
-                timings: planned.timings,
-                table: planned.table,
-            }
+            (
+                Packed {
+                    codec: planned.encoded.spec.clone(),
+                    bytes,
+                    tabulate_s: planned.tabulate_s,
+                    encode_s: planned.encode_s,
+                    budget: Some(BudgetReport {
+                        bounds: budget.bounds.clone(),
+                        default: default_budget,
+                        effort,
+                        against: "source",
+                        file: planned.encoded.estimate.clone(),
+                        grid_alone: planned.encoded.floor.clone(),
+                        estimate_samples: planned.estimate_samples,
+                        confidence_z: CONFIDENCE_Z,
+                        samples: a.samples,
+                        seed: a.seed,
+                        grids: planned.attempts,
+                    }),
+                    timings: planned.timings,
+                    table: TableFacts::of(&planned.table),
+                },
+                held,
+            )
         }
         None => {
             let grid = grid.unwrap_or_else(|| default_grid(src.as_ref()));
@@ -237,18 +285,21 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
                 CodecRequest::parse(a.codec.as_deref().unwrap_or("lossless"))?.resolve(&table)?;
             let bytes = native::to_bytes(&table, &codec)?;
             let encode_s = t1.elapsed().as_secs_f64();
-            Packed {
-                table,
-                codec,
-                bytes,
-                tabulate_s,
-                encode_s,
-                budget: None,
-                timings: vec![
-                    ("tabulate".to_string(), tabulate_s),
-                    ("encode".to_string(), encode_s),
-                ],
-            }
+            (
+                Packed {
+                    table: TableFacts::of(&table),
+                    codec,
+                    bytes,
+                    tabulate_s,
+                    encode_s,
+                    budget: None,
+                    timings: vec![
+                        ("tabulate".to_string(), tabulate_s),
+                        ("encode".to_string(), encode_s),
+                    ],
+                },
+                Some(src),
+            )
         }
     };
     let Packed {
@@ -260,7 +311,11 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         budget: budget_report,
         mut timings,
     } = packed;
-    let grid = table.grid().clone();
+    let src = match held {
+        Some(s) => s,
+        None => open()?,
+    };
+    let grid = table.grid.clone();
     // Check what a reader will get: decode the bytes we are about to write.
     let t2 = Instant::now();
     let back = native::from_bytes(&bytes, &a.output)?;
@@ -308,21 +363,21 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     }
     atomic::write_output(&a.output, &bytes)?;
     a.depfile.write(&[a.output.as_path()], &reads)?;
-    let raw = table.data().len() * 4;
+    let raw = table.samples * 4;
     let scene_report = (!scene.is_empty())
-        .then(|| scene.report(&full_channels, table.channels(), &grid, table.valid_count()));
+        .then(|| scene.report(&full_channels, &table.channels, &grid, table.valid_cells));
     let r = PackReport {
         output: a.output.display().to_string(),
-        source: src.describe(),
+        source: source_name,
         grid: grid.describe(),
         codec,
         cells: grid.cells(),
-        valid_cells: table.valid_count(),
-        channels: table.channels().len(),
+        valid_cells: table.valid_cells,
+        channels: table.channels.len(),
         bytes: bytes.len(),
         raw_f32_bytes: raw,
         compression_ratio: raw as f64 / bytes.len() as f64,
-        bits_per_sample: bytes.len() as f64 * 8.0 / table.data().len() as f64,
+        bits_per_sample: bytes.len() as f64 * 8.0 / table.samples as f64,
         tabulate_s,
         encode_s,
         decode_s,

@@ -24,6 +24,37 @@ impl Zstd {
             .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))
     }
 
+    /// Compresses the `len` bytes `write` writes, without holding them: zstd's streaming
+    /// encoder with the size pledged, so that the frame names its content size as
+    /// [`Zstd::compress`]'s does and [`Zstd::decompress`] reads it the same way.
+    pub fn compress_streamed(
+        &self,
+        len: usize,
+        write: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
+    ) -> Result<Vec<u8>> {
+        if !(1..=22).contains(&self.level) {
+            return Err(Error::input(format!(
+                "zstd level {} is out of range [1, 22]",
+                self.level
+            )));
+        }
+        let failed = |e: std::io::Error| Error::Failure(format!("zstd compression failed: {e}"));
+        let mut enc = zstd::stream::write::Encoder::new(Vec::new(), self.level).map_err(failed)?;
+        enc.set_pledged_src_size(Some(len as u64)).map_err(failed)?;
+        enc.include_contentsize(true).map_err(failed)?;
+        // Level 19 is the one level whose binary-tree match finder gets a chain log (24)
+        // above its window log (23): 64 MB of tree for inputs over 8 MB. Capped at the
+        // window log it takes 32 MB, and the lossless streams of a 52 MB table, a MERL file
+        // and a narrow-peak material come out 20–130 bytes smaller, not larger
+        // (docs/benchmarks.md, "Lossless encode memory").
+        if self.level == 19 {
+            enc.set_parameter(zstd::zstd_safe::CParameter::ChainLog(23))
+                .map_err(failed)?;
+        }
+        write(&mut enc).map_err(failed)?;
+        enc.finish().map_err(failed)
+    }
+
     /// Decompresses exactly `want` bytes (a hostile payload cannot ask for more).
     pub fn decompress(&self, b: &[u8], want: usize) -> Result<Vec<u8>> {
         if want > MAX_STREAM {

@@ -128,10 +128,84 @@ impl Stencil {
 
 /// Walks the cells of `dims` in C order, yielding (flat cell, flat padded value index,
 /// index along the fastest axis).
-fn walk(dims: &[usize], st: &Stencil, channels: usize, mut f: impl FnMut(usize, usize, usize)) {
+/// The working array of a walk over the grid: for two or more axes, only the pad₀ + 1 slices
+/// along the slowest axis that the stencil reaches back to (the current slice last), not the
+/// whole padded grid: a 52 MB table needs a window of under 1 MB instead of a padded copy of
+/// itself (twice its size in i64). Indices are the padded grid's, shifted by the slices
+/// already passed; reads only reach earlier cells, which the window still holds.
+#[derive(Clone, Copy)]
+pub(super) struct Window {
+    /// Values in one padded slice along the slowest axis (0: the whole grid is held).
+    slice: usize,
+    len: usize,
+}
+
+impl Window {
+    pub(super) fn new(st: &Stencil, dims: &[usize], channels: usize) -> Window {
+        if dims.len() < 2 {
+            return Window {
+                slice: 0,
+                len: st.padded_len(channels),
+            };
+        }
+        let slice = st.pdims[1..].iter().product::<usize>() * channels;
+        Window {
+            slice,
+            len: (st.pad[0] + 1) * slice,
+        }
+    }
+
+    /// The whole padded grid: the working array before the window (kept for the tests).
+    #[cfg(test)]
+    fn whole(st: &Stencil, channels: usize) -> Window {
+        Window {
+            slice: 0,
+            len: st.padded_len(channels),
+        }
+    }
+
+    pub(super) fn buffer<T: Copy + Default>(&self) -> Vec<T> {
+        vec![T::default(); self.len]
+    }
+
+    /// The window index of padded index `p` in slice `i0` of the slowest axis.
+    #[inline]
+    pub(super) fn local(&self, p: usize, i0: usize) -> usize {
+        p - i0 * self.slice
+    }
+
+    /// Moves to the next slice: the slices kept slide down one place.
+    #[inline]
+    pub(super) fn advance<T: Copy>(&self, w: &mut [T]) {
+        if self.slice > 0 {
+            w.copy_within(self.slice.., 0);
+        }
+    }
+}
+
+/// Calls `f(w, cell, i, k)` for every cell in C order: `i` the cell's first value in the
+/// working array `w` ([`Window`]), `k` its index along the fastest axis.
+fn walk<T: Copy + Default>(
+    dims: &[usize],
+    st: &Stencil,
+    channels: usize,
+    f: impl FnMut(&mut [T], usize, usize, usize),
+) {
+    walk_in(Window::new(st, dims, channels), dims, st, channels, f)
+}
+
+/// [`walk`] in a given window.
+fn walk_in<T: Copy + Default>(
+    window: Window,
+    dims: &[usize],
+    st: &Stencil,
+    channels: usize,
+    mut f: impl FnMut(&mut [T], usize, usize, usize),
+) {
     let d = dims.len();
     let last = dims[d - 1];
     let outer: usize = dims[..d - 1].iter().product();
+    let mut w: Vec<T> = window.buffer();
     let mut idx = vec![0usize; d];
     let mut cell = 0;
     for _ in 0..outer {
@@ -141,15 +215,18 @@ fn walk(dims: &[usize], st: &Stencil, channels: usize, mut f: impl FnMut(usize, 
             let i = if a == d - 1 { 0 } else { idx[a] };
             p = p * st.pdims[a] + i + st.pad[a];
         }
-        let p = p * channels;
+        let p = window.local(p * channels, if d > 1 { idx[0] } else { 0 });
         for k in 0..last {
-            f(cell, p + k * channels, k);
+            f(&mut w, cell, p + k * channels, k);
             cell += 1;
         }
         // Advance the outer multi-index.
         for a in (0..d - 1).rev() {
             idx[a] += 1;
             if idx[a] < dims[a] {
+                if a == 0 {
+                    window.advance(&mut w);
+                }
                 break;
             }
             idx[a] = 0;
@@ -161,36 +238,41 @@ impl Predictor {
     /// The prediction residuals (zigzagged) of every valid sample, cell-major, channel fastest.
     /// `data` holds every cell (invalid ones are ignored).
     pub fn residuals_f32(&self, data: &[f32], shape: &Shape) -> Result<Vec<u32>> {
+        let mut out = Vec::with_capacity(valid_values(shape));
+        self.residuals_f32_each(data, shape, |r| out.push(r))?;
+        Ok(out)
+    }
+
+    /// [`Predictor::residuals_f32`] handed to `sink` one at a time, in order, without holding
+    /// them (the encoder streams them to zstd).
+    pub fn residuals_f32_each(
+        &self,
+        data: &[f32],
+        shape: &Shape,
+        mut sink: impl FnMut(u32),
+    ) -> Result<()> {
+        if self.space == Space::Integer {
+            return self.residuals_int_each(|i| key_of(data[i]), shape, sink);
+        }
         let c = shape.channels;
         let st = Stencil::new(&self.orders, shape.dims, c)?;
-        let n_valid = shape.valid.iter().filter(|&&v| v).count();
-        let mut out = Vec::with_capacity(n_valid * c);
         let mut r0 = 0i32;
-        match self.space {
-            Space::Float => {
-                let mut w = vec![0f32; st.padded_len(c)];
-                walk(shape.dims, &st, c, |cell, p, k| {
-                    for ch in 0..c {
-                        let i = p + ch;
-                        if !shape.valid[cell] {
-                            // Fill: the previous sample along the fastest axis (pad 0 at k = 0).
-                            w[i] = if k > 0 { w[i - c] } else { 0.0 };
-                            continue;
-                        }
-                        let x = data[cell * c + ch];
-                        w[i] = x;
-                        let pred = predict_float(&w, i, &st.terms);
-                        let r = key_of(x).wrapping_sub(key_of(pred));
-                        push_residual(&mut out, &mut r0, r, ch, self.cross_channel);
-                    }
-                });
+        walk(shape.dims, &st, c, |w: &mut [f32], cell, p, k| {
+            for ch in 0..c {
+                let i = p + ch;
+                if !shape.valid[cell] {
+                    // Fill: the previous sample along the fastest axis (pad 0 at k = 0).
+                    w[i] = if k > 0 { w[i - c] } else { 0.0 };
+                    continue;
+                }
+                let x = data[cell * c + ch];
+                w[i] = x;
+                let pred = predict_float(w, i, &st.terms);
+                let r = key_of(x).wrapping_sub(key_of(pred));
+                sink(residual_of(&mut r0, r, ch, self.cross_channel));
             }
-            Space::Integer => {
-                let keys: Vec<i32> = data.iter().map(|&x| key_of(x)).collect();
-                return self.residuals_i32(&keys, shape);
-            }
-        }
-        Ok(out)
+        });
+        Ok(())
     }
 
     /// Inverse of [`Predictor::residuals_f32`]: every cell's values (invalid cells 0).
@@ -206,11 +288,10 @@ impl Predictor {
         }
         let st = Stencil::new(&self.orders, shape.dims, c)?;
         check_count(res, shape)?;
-        let mut w = vec![0f32; st.padded_len(c)];
         let mut out = vec![0f32; shape.valid.len() * c];
         let mut next = 0usize;
         let mut r0 = 0i32;
-        walk(shape.dims, &st, c, |cell, p, k| {
+        walk(shape.dims, &st, c, |w: &mut [f32], cell, p, k| {
             for ch in 0..c {
                 let i = p + ch;
                 if !shape.valid[cell] {
@@ -219,7 +300,7 @@ impl Predictor {
                 }
                 let r = pop_residual(res[next], &mut r0, ch, self.cross_channel);
                 next += 1;
-                let pred = predict_float(&w, i, &st.terms);
+                let pred = predict_float(w, i, &st.terms);
                 let x = float_of(key_of(pred).wrapping_add(r));
                 w[i] = x;
                 out[cell * c + ch] = x;
@@ -230,27 +311,38 @@ impl Predictor {
 
     /// Residuals of integer samples (quantized codecs, or float keys), exact.
     pub fn residuals_i32(&self, keys: &[i32], shape: &Shape) -> Result<Vec<u32>> {
+        let mut out = Vec::with_capacity(valid_values(shape));
+        self.residuals_int_each(|i| keys[i], shape, |r| out.push(r))?;
+        Ok(out)
+    }
+
+    /// [`Predictor::residuals_i32`] of the samples `value(i)` (i over every cell's values),
+    /// handed to `sink` one at a time.
+    pub fn residuals_int_each(
+        &self,
+        value: impl Fn(usize) -> i32,
+        shape: &Shape,
+        mut sink: impl FnMut(u32),
+    ) -> Result<()> {
         let c = shape.channels;
         let st = Stencil::new(&self.orders, shape.dims, c)?;
-        let mut w = vec![0i64; st.padded_len(c)];
-        let mut out = Vec::new();
         let mut r0 = 0i32;
-        walk(shape.dims, &st, c, |cell, p, k| {
+        walk(shape.dims, &st, c, |w: &mut [i64], cell, p, k| {
             for ch in 0..c {
                 let i = p + ch;
                 if !shape.valid[cell] {
                     w[i] = if k > 0 { w[i - c] } else { 0 };
                     continue;
                 }
-                let x = keys[cell * c + ch];
+                let x = value(cell * c + ch);
                 w[i] = x as i64;
-                let pred = predict_int(&w, i, &st.terms);
+                let pred = predict_int(w, i, &st.terms);
                 // Wrapping: the decoder adds back modulo 2^32, which recovers x exactly.
                 let r = (x as i64).wrapping_sub(pred) as i32;
-                push_residual(&mut out, &mut r0, r, ch, self.cross_channel);
+                sink(residual_of(&mut r0, r, ch, self.cross_channel));
             }
         });
-        Ok(out)
+        Ok(())
     }
 
     /// Inverse of [`Predictor::residuals_i32`] (invalid cells hold their fill value).
@@ -258,11 +350,10 @@ impl Predictor {
         let c = shape.channels;
         let st = Stencil::new(&self.orders, shape.dims, c)?;
         check_count(res, shape)?;
-        let mut w = vec![0i64; st.padded_len(c)];
         let mut out = vec![0i32; shape.valid.len() * c];
         let mut next = 0usize;
         let mut r0 = 0i32;
-        walk(shape.dims, &st, c, |cell, p, k| {
+        walk(shape.dims, &st, c, |w: &mut [i64], cell, p, k| {
             for ch in 0..c {
                 let i = p + ch;
                 if !shape.valid[cell] {
@@ -271,7 +362,7 @@ impl Predictor {
                 }
                 let r = pop_residual(res[next], &mut r0, ch, self.cross_channel);
                 next += 1;
-                let pred = predict_int(&w, i, &st.terms);
+                let pred = predict_int(w, i, &st.terms);
                 let x = (pred as i32).wrapping_add(r);
                 w[i] = x as i64;
                 out[cell * c + ch] = x;
@@ -279,6 +370,11 @@ impl Predictor {
         });
         Ok(out)
     }
+}
+
+/// Residuals in a stream: valid cells × channels.
+fn valid_values(shape: &Shape) -> usize {
+    shape.valid.iter().filter(|&&v| v).count() * shape.channels
 }
 
 #[inline]
@@ -300,15 +396,17 @@ fn predict_int(w: &[i64], i: usize, terms: &[(usize, i64)]) -> i64 {
     s
 }
 
+/// The stored residual of channel `ch`: zigzagged, and for cross-channel predictors taken
+/// against channel 0's residual of the same cell (kept in `r0`).
 #[inline]
-fn push_residual(out: &mut Vec<u32>, r0: &mut i32, r: i32, ch: usize, cross: bool) {
+fn residual_of(r0: &mut i32, r: i32, ch: usize, cross: bool) -> u32 {
     if ch == 0 {
         *r0 = r;
-        out.push(zigzag(r));
+        zigzag(r)
     } else if cross {
-        out.push(zigzag(r.wrapping_sub(*r0)));
+        zigzag(r.wrapping_sub(*r0))
     } else {
-        out.push(zigzag(r));
+        zigzag(r)
     }
 }
 
@@ -337,6 +435,50 @@ pub(super) fn check_residual_count(n: usize, shape: &Shape) -> Result<()> {
         )));
     }
     Ok(())
+}
+
+/// [`shuffle`] of the `count` residuals `each` hands to its sink, compressed by `entropy`
+/// without holding the residuals or their planes: `each` runs once per byte plane (a walk
+/// costs a small fraction of zstd's time; the residuals and the planes were each the size
+/// of the table).
+pub fn compress_shuffled(
+    entropy: &super::entropy::Zstd,
+    count: usize,
+    each: impl Fn(&mut dyn FnMut(u32)) -> Result<()>,
+) -> Result<Vec<u8>> {
+    const CHUNK: usize = 1 << 16;
+    let mut failed = None;
+    entropy.compress_streamed(4 * count, |w| {
+        let mut buf = Vec::with_capacity(CHUNK);
+        for plane in 0..4 {
+            let shift = 8 * plane;
+            let mut seen = 0usize;
+            let walked = each(&mut |r| {
+                seen += 1;
+                buf.push((r >> shift) as u8);
+                if buf.len() == CHUNK {
+                    if let Err(e) = w.write_all(&buf) {
+                        failed.get_or_insert(e);
+                    }
+                    buf.clear();
+                }
+            });
+            if let Err(e) = walked {
+                return Err(std::io::Error::other(e.to_string()));
+            }
+            if seen != count {
+                return Err(std::io::Error::other(format!(
+                    "{seen} residuals in byte plane {plane}, expected {count}"
+                )));
+            }
+            w.write_all(&buf)?;
+            buf.clear();
+            if let Some(e) = failed.take() {
+                return Err(e);
+            }
+        }
+        Ok(())
+    })
 }
 
 /// Byte shuffle: the k-th byte of every value into plane k (little-endian).
@@ -431,6 +573,104 @@ pub fn candidates(d: usize, channels: usize) -> Vec<Predictor> {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn the_window_reads_what_the_whole_padded_grid_held() {
+        // Every stencil of orders 0..=2 per axis on 2-, 3- and 4-axis grids with invalid
+        // cells: the predictions made in the sliding window of pad₀ + 1 slices are those made
+        // in the whole padded grid (the window's indices, its slide, and the fill of invalid
+        // cells), bit for bit, float and integer.
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for dims in [vec![5, 7], vec![4, 3, 6], vec![3, 2, 4, 5], vec![1, 4, 3]] {
+            let d = dims.len();
+            let cells: usize = dims.iter().product();
+            let c = 2;
+            let valid: Vec<bool> = (0..cells).map(|_| next() % 5 != 0).collect();
+            let data: Vec<f32> = (0..cells * c)
+                .map(|_| (next() % 20_000) as f32 / 97.0 - 60.0)
+                .collect();
+            for code in 0..3usize.pow(d as u32) {
+                let orders: Vec<u8> = (0..d)
+                    .map(|a| (code / 3usize.pow(a as u32) % 3) as u8)
+                    .collect();
+                let st = Stencil::new(&orders, &dims, c).unwrap();
+                let run = |window: Window| {
+                    let mut seen: Vec<(u32, i64)> = Vec::new();
+                    walk_in(window, &dims, &st, c, |w: &mut [f32], cell, p, k| {
+                        for ch in 0..c {
+                            let i = p + ch;
+                            if !valid[cell] {
+                                w[i] = if k > 0 { w[i - c] } else { 0.0 };
+                                continue;
+                            }
+                            w[i] = data[cell * c + ch];
+                            seen.push((predict_float(w, i, &st.terms).to_bits(), 0));
+                        }
+                    });
+                    walk_in(window, &dims, &st, c, |w: &mut [i64], cell, p, k| {
+                        for ch in 0..c {
+                            let i = p + ch;
+                            if !valid[cell] {
+                                w[i] = if k > 0 { w[i - c] } else { 0 };
+                                continue;
+                            }
+                            w[i] = key_of(data[cell * c + ch]) as i64;
+                            seen.push((0, predict_int(w, i, &st.terms)));
+                        }
+                    });
+                    seen
+                };
+                let windowed = run(Window::new(&st, &dims, c));
+                let whole = run(Window::whole(&st, c));
+                assert_eq!(windowed, whole, "dims {dims:?} orders {orders:?}");
+                // The window holds at most what the padded grid did.
+                assert!(Window::new(&st, &dims, c).len <= Window::whole(&st, c).len);
+            }
+        }
+    }
+
+    #[test]
+    fn the_streamed_stream_is_the_shuffle_of_the_residuals() {
+        // compress_shuffled walks once per byte plane and streams to zstd: decompressed, it
+        // must be exactly the shuffle of the residuals collected in one walk.
+        let dims = [6usize, 5, 9];
+        let cells: usize = dims.iter().product();
+        let c = 3;
+        let valid: Vec<bool> = (0..cells).map(|i| i % 7 != 3).collect();
+        let data: Vec<f32> = (0..cells * c)
+            .map(|i| ((i * 37 % 101) as f32).ln_1p() * 1e3)
+            .collect();
+        let shape = Shape {
+            dims: &dims,
+            valid: &valid,
+            channels: c,
+        };
+        let zstd = super::super::entropy::Zstd { level: 19 };
+        for p in candidates(3, c) {
+            let res = p.residuals_f32(&data, &shape).unwrap();
+            let z = compress_shuffled(&zstd, res.len(), |sink| {
+                p.residuals_f32_each(&data, &shape, sink)
+            })
+            .unwrap();
+            assert_eq!(
+                zstd.decompress(&z, res.len() * 4).unwrap(),
+                shuffle(&res),
+                "{p:?}"
+            );
+            // A walk that hands fewer residuals than promised is an error, not a short frame.
+            assert!(
+                compress_shuffled(&zstd, res.len() + 1, |sink| p
+                    .residuals_f32_each(&data, &shape, sink))
+                .is_err()
+            );
+        }
+    }
 
     #[test]
     fn keys_preserve_order_and_round_trip() {

@@ -397,8 +397,11 @@ impl CodecSpec {
             CodecSpec::Lossless {
                 predict, entropy, ..
             } => {
-                let res = predict.residuals_f32(table.data(), &layout.shape(&dims))?;
-                entropy.compress(&predict::shuffle(&res))
+                let shape = layout.shape(&dims);
+                let count = table.valid_count() * c;
+                predict::compress_shuffled(entropy, count, |sink| {
+                    predict.residuals_f32_each(table.data(), &shape, sink)
+                })
             }
             CodecSpec::Quantized {
                 transform,
@@ -416,8 +419,11 @@ impl CodecSpec {
                         }
                     }
                 }
-                let res = predict.residuals_i32(&codes, &layout.shape(&dims))?;
-                entropy.compress(&predict::shuffle(&res))
+                let shape = layout.shape(&dims);
+                let count = table.valid_count() * c;
+                predict::compress_shuffled(entropy, count, |sink| {
+                    predict.residuals_int_each(|i| codes[i], &shape, sink)
+                })
             }
             CodecSpec::Dct {
                 transform,
@@ -514,8 +520,7 @@ impl CodecSpec {
                 predict, entropy, ..
             } => {
                 let raw = entropy.decompress(payload, n_valid * c * 4)?;
-                let v = unpredict::reconstruct_f32(predict, &raw, &layout.shape(&dims))?;
-                copy_decoded(&v, out)
+                unpredict::reconstruct_f32_into(predict, &raw, &layout.shape(&dims), out)
             }
             CodecSpec::Quantized {
                 transform,

@@ -11,7 +11,9 @@
 
 #![allow(clippy::needless_range_loop)] // Lane loops index several parallel arrays.
 
-use super::predict::{Predictor, Shape, Space, Stencil, check_residual_count, float_of, key_of};
+use super::predict::{
+    Predictor, Shape, Space, Stencil, Window, check_residual_count, float_of, key_of,
+};
 use super::simd::dispatch;
 use crate::{Error, Result};
 
@@ -100,9 +102,17 @@ impl Rows {
         }
     }
 
-    /// Calls `f(row, padded value index of the row's first cell)` for every row in C order.
-    fn for_each(&self, dims: &[usize], st: &Stencil, mut f: impl FnMut(usize, usize)) {
+    /// Calls `f(w, row, index of the row's first cell in w)` for every row in C order, `w`
+    /// the working array of a [`Window`] (slid on as the slowest axis advances).
+    fn for_each<T: Copy + Default>(
+        &self,
+        dims: &[usize],
+        st: &Stencil,
+        mut f: impl FnMut(&mut [T], usize, usize),
+    ) {
         let d = self.d;
+        let window = Window::new(st, dims, self.c);
+        let mut w: Vec<T> = window.buffer();
         let mut idx = vec![0usize; d];
         for row in 0..self.outer {
             let mut p = 0;
@@ -110,10 +120,17 @@ impl Rows {
                 let i = if a == d - 1 { 0 } else { idx[a] };
                 p = p * st.pdims[a] + i + st.pad[a];
             }
-            f(row, p * self.c);
+            f(
+                &mut w,
+                row,
+                window.local(p * self.c, if d > 1 { idx[0] } else { 0 }),
+            );
             for a in (0..d - 1).rev() {
                 idx[a] += 1;
                 if idx[a] < dims[a] {
+                    if a == 0 {
+                        window.advance(&mut w);
+                    }
                     break;
                 }
                 idx[a] = 0;
@@ -133,18 +150,17 @@ pub fn reconstruct_i32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
     let in_row: Vec<(usize, i32)> = rows.in_row.iter().map(|&(o, k)| (o, k as i32)).collect();
     let earlier: Vec<(usize, i32)> = rows.earlier.iter().map(|&(o, k)| (o, k as i32)).collect();
     let row_values = rows.last * c;
-    let mut w = vec![0i32; st.padded_len(c)];
     let mut out = vec![0i32; shape.valid.len() * c];
     let mut rest = vec![0i32; row_values];
     let mut r = vec![0i32; row_values];
     let mut next = 0usize;
-    rows.for_each(shape.dims, &st, |row, base| {
+    rows.for_each(shape.dims, &st, |w: &mut [i32], row, base| {
         let cell0 = row * rows.last;
         let valid = &shape.valid[cell0..cell0 + rows.last];
         let nres = valid.iter().filter(|&&v| v).count() * c;
         gather_residuals(planes, next, c, p.cross_channel, &mut r[..nres]);
         next += nres;
-        earlier_sum_i32(&w, base, &earlier, &mut rest);
+        earlier_sum_i32(w, base, &earlier, &mut rest);
         let mut j = 0;
         for (k, &ok) in valid.iter().enumerate() {
             let i = base + k * c;
@@ -188,23 +204,41 @@ fn earlier_impl(w: &[i32], base: usize, terms: &[(usize, i32)], rest: &mut [i32]
 
 /// Inverse of [`Predictor::residuals_f32`] from the shuffled stream: every cell's values
 /// (invalid cells 0), bit for bit those of [`Predictor::reconstruct_f32`].
+#[cfg(test)]
 pub fn reconstruct_f32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<Vec<f32>> {
+    let mut out = vec![0f32; shape.valid.len() * shape.channels];
+    reconstruct_f32_into(p, shuffled, shape, &mut out)?;
+    Ok(out)
+}
+
+/// [`reconstruct_f32`] into `out` (every cell's values; the decoder's buffer, so that a
+/// decode holds the stream and the table, not a third array of the table's size).
+pub fn reconstruct_f32_into(
+    p: &Predictor,
+    shuffled: &[u8],
+    shape: &Shape,
+    out: &mut [f32],
+) -> Result<()> {
     let c = shape.channels;
+    if out.len() != shape.valid.len() * c {
+        return Err(Error::input(format!(
+            "payload decodes to {} values, the table has {}",
+            shape.valid.len() * c,
+            out.len()
+        )));
+    }
     if p.space == Space::Integer {
         let keys = reconstruct_i32(p, shuffled, shape)?;
-        let mut out = vec![0f32; keys.len()];
         for ((o, k), &ok) in out
             .chunks_exact_mut(c)
             .zip(keys.chunks_exact(c))
             .zip(shape.valid)
         {
-            if ok {
-                for (o, &k) in o.iter_mut().zip(k) {
-                    *o = float_of(k);
-                }
+            for (o, &k) in o.iter_mut().zip(k) {
+                *o = if ok { float_of(k) } else { 0.0 };
             }
         }
-        return Ok(out);
+        return Ok(());
     }
     let st = Stencil::new(&p.orders, shape.dims, c)?;
     let planes = Planes::split(shuffled)?;
@@ -213,11 +247,9 @@ pub fn reconstruct_f32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
     // The reference adds the terms in the stencil's order; so must we (f64 rounding).
     let terms: Vec<(usize, f64)> = st.terms.iter().map(|&(o, k)| (o, k as f64)).collect();
     let row_values = rows.last * c;
-    let mut w = vec![0f32; st.padded_len(c)];
-    let mut out = vec![0f32; shape.valid.len() * c];
     let mut r = vec![0i32; row_values];
     let mut next = 0usize;
-    rows.for_each(shape.dims, &st, |row, base| {
+    rows.for_each(shape.dims, &st, |w: &mut [f32], row, base| {
         let cell0 = row * rows.last;
         let valid = &shape.valid[cell0..cell0 + rows.last];
         let nres = valid.iter().filter(|&&v| v).count() * c;
@@ -229,6 +261,7 @@ pub fn reconstruct_f32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
             if !ok {
                 for ch in 0..c {
                     w[i + ch] = if k > 0 { w[i + ch - c] } else { 0.0 };
+                    out[(cell0 + k) * c + ch] = 0.0;
                 }
                 continue;
             }
@@ -247,7 +280,7 @@ pub fn reconstruct_f32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
             }
         }
     });
-    Ok(out)
+    Ok(())
 }
 
 #[cfg(test)]

@@ -36,6 +36,16 @@ pub enum PackInput<'a> {
         grid: Option<Grid>,
         options: TabulateOptions,
     },
+    /// A source the caller can open again (a stored table: as large as the table planned).
+    /// On a fixed grid it is opened for the reference values and the tabulation and is not
+    /// held while the codec is chosen, so that it, the tabulation and the coefficients are
+    /// never in memory at once; it is opened again only if the lossless chain is chosen.
+    /// Without a grid it is opened once and held, as [`PackInput::Source`].
+    Reopened {
+        open: Reopen<'a>,
+        grid: Option<Grid>,
+        options: TabulateOptions,
+    },
     /// A table that is its own source (`compress` of a stored table): its grid, and its error
     /// measured against its own linear interpolation. Given owned, it becomes the planned
     /// table without a copy; borrowed, it is copied once, after the planning (the planner
@@ -47,6 +57,24 @@ pub enum PackInput<'a> {
         /// ([`super::rate::encode_within_lending`]).
         again: Option<Again<'a>>,
     },
+}
+
+/// Opens a [`PackInput::Reopened`] source, the same each time.
+pub type Reopen<'a> = &'a (dyn Fn() -> Result<Box<dyn Brdf>> + 'a);
+
+/// The source while planning: the caller's, or one opened for the plan.
+enum Held<'a> {
+    Borrowed(&'a dyn Brdf),
+    Opened(Box<dyn Brdf>),
+}
+
+impl Held<'_> {
+    fn get(&self) -> &dyn Brdf {
+        match self {
+            Held::Borrowed(b) => *b,
+            Held::Opened(b) => b.as_ref(),
+        }
+    }
 }
 
 /// The planner's settings.
@@ -108,15 +136,27 @@ struct Tabulated {
 /// Plans the smallest file meeting the budget (module doc). Fails with
 /// [`Error::Failure`] (exit 1) naming the grids' own errors when no grid can meet it.
 pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Result<Planned> {
-    let (source, grid, options) = match input {
+    let mut timings = Vec::new();
+    let (held, grid, options, reopen) = match input {
         PackInput::Table { table, again } => return plan_table(table, again, settings, progress),
         PackInput::Source {
             source,
             grid,
             options,
-        } => (source, grid, options),
+        } => (Held::Borrowed(source), grid, options, None),
+        PackInput::Reopened {
+            open,
+            grid,
+            options,
+        } => {
+            let t = Instant::now();
+            progress("reading the source");
+            let held = Held::Opened(open()?);
+            timings.push(("read source".to_string(), t.elapsed().as_secs_f64()));
+            (held, grid, options, Some(open))
+        }
     };
-    let mut timings = Vec::new();
+    let source = held.get();
     let (start, refine) = match grid {
         Some(g) => (g, false),
         None => (parse_grid_spec(default_grid_spec(source))?, true),
@@ -138,72 +178,93 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     // the domain.
     let for_samples = check.len().max(1);
     timings.push(("reference values".to_string(), t.elapsed().as_secs_f64()));
-    let prepare = |grid: &Grid, timings: &mut Vec<(String, f64)>| -> Result<Tabulated> {
+    let tabulate_on = |source: &dyn Brdf,
+                       grid: &Grid,
+                       timings: &mut Vec<(String, f64)>|
+     -> Result<(Table, f64)> {
         let t = Instant::now();
         progress(&format!("tabulating on {}", grid.describe()));
-        let (spec, table) = (grid.describe(), tabulate(source, grid, &options)?);
+        let table = tabulate(source, grid, &options)?;
         let tabulate_s = t.elapsed().as_secs_f64();
-        timings.push((format!("tabulate {spec}"), tabulate_s));
-        let t = Instant::now();
-        progress(&format!("interpolation stencils on {spec}"));
-        let mut table = table;
-        let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
-        let mut floor = est.measure(table.data());
-        // What is interpolated between the samples is measured too, when the planner owns
-        // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
-        // horizon is smooth only in the latter). Tried when the grid's own error is a real
-        // share of the budget; the other stencils cost a fraction of a tabulation.
-        let mut spec = spec;
-        if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
-            // The table's grid as it now interpolates, measured; kept when its own error uses
-            // less of the budget than the best so far.
-            let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
-                let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
-                let f = e.measure(table.data());
-                let better =
-                    floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
-                if better {
-                    (*est, *floor) = (e, f);
-                }
-                Ok::<bool, Error>(better)
-            };
-            let table = &mut table;
-            let plain = table.grid().weight();
-            table.set_interp_weight(match plain {
-                InterpWeight::None => InterpWeight::Cosine,
-                InterpWeight::Cosine => InterpWeight::None,
-            });
-            if !closer(table, &mut est, &mut floor)? {
-                table.set_interp_weight(plain);
-            }
-            // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
-            // flanks fall by decades between samples, which linear interpolation
-            // overestimates and a geometric mean follows.
-            let mut kept = table.grid().space();
-            for log in log_spaces_of(table, &est) {
-                table.set_interp_space(log);
-                if closer(table, &mut est, &mut floor)? {
-                    kept = log;
-                }
-            }
-            table.set_interp_space(kept);
-            spec = table.grid().describe();
-        }
-        timings.push((
-            format!("stencils and grid error {spec}"),
-            t.elapsed().as_secs_f64(),
-        ));
-        Ok(Tabulated {
-            spec,
-            table,
-            est,
-            floor,
-            tabulate_s,
-        })
+        timings.push((format!("tabulate {}", grid.describe()), tabulate_s));
+        Ok((table, tabulate_s))
     };
+    let measure =
+        |table: Table, tabulate_s: f64, timings: &mut Vec<(String, f64)>| -> Result<Tabulated> {
+            let spec = table.grid().describe();
+            let t = Instant::now();
+            progress(&format!("interpolation stencils on {spec}"));
+            let mut table = table;
+            let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
+            let mut floor = est.measure(table.data());
+            // What is interpolated between the samples is measured too, when the planner owns
+            // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
+            // horizon is smooth only in the latter). Tried when the grid's own error is a real
+            // share of the budget; the other stencils cost a fraction of a tabulation.
+            let mut spec = spec;
+            if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
+                // The table's grid as it now interpolates, measured; kept when its own error uses
+                // less of the budget than the best so far.
+                let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
+                    let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
+                    let f = e.measure(table.data());
+                    let better =
+                        floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
+                    if better {
+                        (*est, *floor) = (e, f);
+                    }
+                    Ok::<bool, Error>(better)
+                };
+                let table = &mut table;
+                let plain = table.grid().weight();
+                table.set_interp_weight(match plain {
+                    InterpWeight::None => InterpWeight::Cosine,
+                    InterpWeight::Cosine => InterpWeight::None,
+                });
+                if !closer(table, &mut est, &mut floor)? {
+                    table.set_interp_weight(plain);
+                }
+                // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
+                // flanks fall by decades between samples, which linear interpolation
+                // overestimates and a geometric mean follows.
+                let mut kept = table.grid().space();
+                for log in log_spaces_of(table, &est) {
+                    table.set_interp_space(log);
+                    if closer(table, &mut est, &mut floor)? {
+                        kept = log;
+                    }
+                }
+                table.set_interp_space(kept);
+                spec = table.grid().describe();
+            }
+            timings.push((
+                format!("stencils and grid error {spec}"),
+                t.elapsed().as_secs_f64(),
+            ));
+            Ok(Tabulated {
+                spec,
+                table,
+                est,
+                floor,
+                tabulate_s,
+            })
+        };
     let mut attempts: Vec<GridAttempt> = Vec::new();
     let mut best: Option<(usize, Table, String, Encoded, f64, f64)> = None;
-    let mut current = prepare(&start, &mut timings)?;
+    let prepare = |source: &dyn Brdf, grid: &Grid, timings: &mut Vec<(String, f64)>| {
+        let (table, tabulate_s) = tabulate_on(source, grid, timings)?;
+        measure(table, tabulate_s, timings)
+    };
+    let (table, tabulate_s) = tabulate_on(source, &start, &mut timings)?;
+    // On a fixed grid, a source that can be opened again is not held beside the
+    // coefficients: only the lossless chain needs it again. The coefficients are then made
+    // before the estimator's stencils, as for a stored table ([`plan_table`]).
+    let held = (reopen.is_none() || refine).then_some(held);
+    let mut prepared = match held {
+        None => prepare_coefficients(&table, reference.epsilon(), settings.effort, progress),
+        Some(_) => None,
+    };
+    let mut current = measure(table, tabulate_s, &mut timings)?;
     let mut refinements = 0;
     let mut tight_tried = false;
     loop {
@@ -211,11 +272,15 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         // The tabulation again when the lossless chain is chosen: the rate control decodes
         // into the table's own memory meanwhile.
         let g = current.table.grid().clone();
-        let again = || tabulate(source, &g, &options).map(Table::into_samples);
+        let again = || {
+            with_source(held.as_ref(), reopen, |s| {
+                tabulate(s, &g, &options).map(Table::into_samples)
+            })
+        };
         let outcome = encode_within_lending(
             &mut current.table,
             &again,
-            None,
+            prepared.take(),
             &current.est,
             &settings.budget,
             settings.effort,
@@ -300,7 +365,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             if g.cells() > MAX_REFINED_CELLS {
                 continue;
             }
-            let cand = prepare(&g, &mut timings)?;
+            let cand = with_source(held.as_ref(), reopen, |s| prepare(s, &g, &mut timings))?;
             let sh = floor_share(&settings.budget, &cand.floor);
             if next.as_ref().is_none_or(|(b, _)| sh < *b) {
                 next = Some((sh, cand));
@@ -323,7 +388,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 }
             }
             if changed && let Ok(g) = Grid::from_desc(&d) {
-                let cand = prepare(&g, &mut timings)?;
+                let cand = with_source(held.as_ref(), reopen, |s| prepare(s, &g, &mut timings))?;
                 let sh = floor_share(&settings.budget, &cand.floor);
                 if next.as_ref().is_none_or(|(b, _)| sh < *b) {
                     next = Some((sh, cand));
@@ -348,6 +413,21 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         tabulate_s,
         encode_s,
     })
+}
+
+/// `f` of the source: the one held, or the [`PackInput::Reopened`] one opened again.
+fn with_source<T>(
+    held: Option<&Held>,
+    reopen: Option<Reopen>,
+    f: impl FnOnce(&dyn Brdf) -> Result<T>,
+) -> Result<T> {
+    match (held, reopen) {
+        (Some(h), _) => f(h.get()),
+        (None, Some(open)) => f(open()?.as_ref()),
+        (None, None) => Err(Error::Failure(
+            "internal: the planner holds no source and cannot open it again".to_string(),
+        )),
+    }
 }
 
 /// Pairs of the estimation set: twice as many at `--effort max`.
@@ -553,4 +633,86 @@ fn no_grid_message(budget: &Budget, attempts: &[GridAttempt]) -> String {
         budget.describe(),
         per_grid.join("; ")
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Model;
+    use crate::table::{Interp, InterpolatedTable};
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    #[test]
+    fn a_source_opened_again_plans_the_file_of_a_source_held() {
+        // `pack TABLE --grid G` opens its table source for the reference values and the
+        // tabulation, frees it while the codec is chosen, and opens it again only for the
+        // lossless chain: the file, its measurement and the table must be those of the plan
+        // that held the source throughout.
+        let m = Model::parse("lambert:albedo=0.1+ggx:alpha=0.2,fresnel=au").unwrap();
+        let stored = parse_grid_spec("halfdiff3:16x12x24,warp=sqrt/linear/linear").unwrap();
+        let source = InterpolatedTable {
+            table: tabulate(&m, &stored, &Default::default()).unwrap(),
+            interp: Interp::Linear,
+        };
+        let opens = AtomicUsize::new(0);
+        let open = || -> Result<Box<dyn Brdf>> {
+            opens.fetch_add(1, Ordering::Relaxed);
+            Ok(Box::new(source.clone()))
+        };
+        let grid = parse_grid_spec("halfdiff3:20x12x24,warp=sqrt/linear/linear").unwrap();
+        for (bounds, opened) in [
+            // A lossy file: the source is read once.
+            ("log_rmse=0.1,p99_rel_core=0.8", 1),
+            // On its own grid the table meets a budget no lossy step reaches: the lossless
+            // chain takes the tabulation again, from the source read again.
+            ("log_rmse=1e-12", 2),
+        ] {
+            let grid = if opened == 2 {
+                stored.clone()
+            } else {
+                grid.clone()
+            };
+            let settings = PackSettings {
+                budget: Budget::parse(bounds).unwrap(),
+                effort: Effort::Fast,
+                check_samples: 4096,
+                check_seed: 7,
+            };
+            let held = plan(
+                PackInput::Source {
+                    source: &source,
+                    grid: Some(grid.clone()),
+                    options: Default::default(),
+                },
+                &settings,
+                &|_| {},
+            )
+            .unwrap();
+            opens.store(0, Ordering::Relaxed);
+            let reopened = plan(
+                PackInput::Reopened {
+                    open: &open,
+                    grid: Some(grid),
+                    options: Default::default(),
+                },
+                &settings,
+                &|_| {},
+            )
+            .unwrap();
+            assert_eq!(opens.load(Ordering::Relaxed), opened, "{bounds}");
+            assert_eq!(reopened.encoded.spec.is_lossless(), opened == 2, "{bounds}");
+            assert_eq!(reopened.encoded.payload, held.encoded.payload, "{bounds}");
+            assert_eq!(reopened.encoded.estimate, held.encoded.estimate, "{bounds}");
+            assert_eq!(reopened.table.valid(), held.table.valid());
+            assert!(
+                reopened
+                    .table
+                    .data()
+                    .iter()
+                    .zip(held.table.data())
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{bounds}"
+            );
+        }
+    }
 }
