@@ -98,17 +98,6 @@ pub(super) fn component_planes(table: &Table, transform: &Transform) -> Vec<Vec<
     planes
 }
 
-pub(super) fn valid_values<'a>(
-    z: &'a [f64],
-    valid: &'a [bool],
-    c: usize,
-) -> impl Iterator<Item = f64> + 'a {
-    z.chunks_exact(c)
-        .zip(valid)
-        .filter(|(_, ok)| **ok)
-        .flat_map(|(v, _)| v.iter().copied())
-}
-
 /// The curve for a table: ε_c = eps_rel × the channel's mean over valid cells (falling back
 /// to the pooled mean, then 1e-6, so that ε is never 0 for a black channel). With a weight,
 /// the mean is that of w·x, the quantity the curve is applied to: ε keeps its meaning (the

@@ -320,7 +320,7 @@ impl Predictor {
     /// handed to `sink` one at a time.
     pub fn residuals_int_each(
         &self,
-        value: impl Fn(usize) -> i32,
+        mut value: impl FnMut(usize) -> i32,
         shape: &Shape,
         mut sink: impl FnMut(u32),
     ) -> Result<()> {

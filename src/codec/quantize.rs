@@ -117,32 +117,46 @@ impl Quantizer {
         }
     }
 
+    /// [`Quantizer::decode_all_f32`] in place: `buf` holds each code's bits
+    /// (`f32::from_bits(q as u32)`) and gets its value, so that a decoder needs no array of
+    /// codes beside its output.
+    pub fn decode_bits_in_place(&self, buf: &mut [f32], c: usize) {
+        match self {
+            Quantizer::F16 { scale } => {
+                use half::slice::HalfFloatSliceExt;
+                const CHUNK: usize = 4096;
+                let mut h = [f16::ZERO; CHUNK];
+                for block in buf.chunks_mut(CHUNK) {
+                    let h = &mut h[..block.len()];
+                    for (h, v) in h.iter_mut().zip(block.iter()) {
+                        *h = f16_of_key(v.to_bits() as i32);
+                    }
+                    h.convert_to_f32_slice(block);
+                    for v in block.iter_mut() {
+                        // As `decode`: hostile Inf/NaN codes read as 0; the division in f64.
+                        *v = if v.is_finite() {
+                            (*v as f64 / scale) as f32
+                        } else {
+                            0.0
+                        };
+                    }
+                }
+            }
+            Quantizer::Uniform { .. } => {
+                for (i, v) in buf.iter_mut().enumerate() {
+                    *v = self.decode(v.to_bits() as i32, i % c) as f32;
+                }
+            }
+        }
+    }
+
     /// [`Quantizer::decode`] of many codes (component = index mod `c`), rounded to f32: the
     /// same values; f16 codes go through `half`'s bulk slice conversion (F16C when the CPU
     /// has it).
     pub fn decode_all_f32(&self, codes: &[i32], c: usize) -> Vec<f32> {
-        match self {
-            Quantizer::F16 { scale } => {
-                use half::slice::HalfFloatSliceExt;
-                let h: Vec<f16> = codes.iter().map(|&q| f16_of_key(q)).collect();
-                let mut out = vec![0f32; h.len()];
-                h.as_slice().convert_to_f32_slice(&mut out);
-                for v in &mut out {
-                    // As `decode`: hostile Inf/NaN codes read as 0; the division in f64.
-                    *v = if v.is_finite() {
-                        (*v as f64 / scale) as f32
-                    } else {
-                        0.0
-                    };
-                }
-                out
-            }
-            Quantizer::Uniform { .. } => codes
-                .iter()
-                .enumerate()
-                .map(|(i, &q)| self.decode(q, i % c) as f32)
-                .collect(),
-        }
+        let mut out: Vec<f32> = codes.iter().map(|&q| f32::from_bits(q as u32)).collect();
+        self.decode_bits_in_place(&mut out, c);
+        out
     }
 }
 

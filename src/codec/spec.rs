@@ -410,20 +410,44 @@ impl CodecSpec {
                 entropy,
                 ..
             } => {
-                let z = transform.forward_all(table.data(), c, layout.grid, layout.valid);
-                let mut codes = vec![0i32; z.len()];
-                for (cell, &ok) in layout.valid.iter().enumerate() {
-                    if ok {
-                        for k in 0..c {
-                            codes[cell * c + k] = quantize.encode(z[cell * c + k], k)?;
-                        }
-                    }
-                }
+                // No array of codes, nor of transformed values (f64, twice the table): each
+                // cell's codes are made when the walk reaches it, again on each of the four
+                // byte-plane passes (a curve and a rounding per value, a small part of zstd's
+                // time).
+                let weights = transform.cell_weights(layout.grid, layout.valid);
+                let failed = std::cell::RefCell::new(None);
                 let shape = layout.shape(&dims);
                 let count = table.valid_count() * c;
-                predict::compress_shuffled(entropy, count, |sink| {
-                    predict.residuals_int_each(|i| codes[i], &shape, sink)
-                })
+                let data = table.data();
+                let payload = predict::compress_shuffled(entropy, count, |sink| {
+                    let (mut y, mut z, mut q) = (vec![0.0; c], vec![0.0; c], vec![0i32; c]);
+                    let mut current = usize::MAX;
+                    let code = |i: usize| {
+                        let cell = i / c;
+                        if cell != current {
+                            current = cell;
+                            let wf = weights.as_ref().map_or(1.0, |w| w[cell]);
+                            transform.forward_cell(
+                                &data[cell * c..(cell + 1) * c],
+                                wf,
+                                &mut y,
+                                &mut z,
+                            );
+                            for k in 0..c {
+                                q[k] = quantize.encode(z[k], k).unwrap_or_else(|e| {
+                                    failed.borrow_mut().get_or_insert(e);
+                                    0
+                                });
+                            }
+                        }
+                        q[i % c]
+                    };
+                    predict.residuals_int_each(code, &shape, sink)
+                });
+                if let Some(e) = failed.into_inner() {
+                    return Err(e);
+                }
+                payload
             }
             CodecSpec::Dct {
                 transform,
@@ -530,26 +554,28 @@ impl CodecSpec {
                 ..
             } => {
                 let raw = entropy.decompress(payload, n_valid * c * 4)?;
-                let codes = unpredict::reconstruct_i32(predict, &raw, &layout.shape(&dims))?;
+                // The codes' bits go into the output buffer and become values there: no array
+                // of codes beside it.
+                unpredict::reconstruct_i32_with(predict, &raw, &layout.shape(&dims), |i, q| {
+                    out[i] = f32::from_bits(q as u32)
+                })?;
+                drop(raw);
                 match &transform.colour {
                     // The colour matrix mixes components: apply it in f64 like the encoder.
                     Some(col) => {
                         let mut z = vec![0.0; c];
                         let mut y = vec![0.0; c];
-                        for (o, q) in out.chunks_exact_mut(c).zip(codes.chunks_exact(c)) {
+                        for o in out.chunks_exact_mut(c) {
                             for k in 0..c {
-                                z[k] = quantize.decode(q[k], k);
+                                z[k] = quantize.decode(o[k].to_bits() as i32, k);
                             }
                             col.inverse(&z, &mut y);
                             for (o, y) in o.iter_mut().zip(&y) {
                                 *o = *y as f32;
                             }
                         }
-                        if codes.len() != values {
-                            return Err(Error::input("quantized payload: wrong number of codes"));
-                        }
                     }
-                    None => copy_decoded(&quantize.decode_all_f32(&codes, c), out)?,
+                    None => quantize.decode_bits_in_place(out, c),
                 }
                 simd::curve_interleaved(&transform.curve, c, layout.valid, out);
                 if let Some(rw) = transform.reciprocal_weights(layout.grid, layout.valid) {
@@ -703,20 +729,6 @@ pub(super) fn half_steps_through_colour(transform: &Transform, step: &[f64]) -> 
             })
             .fold(0.0f64, f64::max),
     }
-}
-
-/// `decoded` into `out`, which must be as long (a stage that produced the wrong count is a
-/// corrupt payload, not a panic).
-pub(super) fn copy_decoded(decoded: &[f32], out: &mut [f32]) -> Result<()> {
-    if decoded.len() != out.len() {
-        return Err(Error::input(format!(
-            "payload decoded to {} values, the table has {}",
-            decoded.len(),
-            out.len()
-        )));
-    }
-    out.copy_from_slice(decoded);
-    Ok(())
 }
 
 /// The quantized components of a Tucker payload, every field checked.

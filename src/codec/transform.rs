@@ -416,14 +416,21 @@ impl Transform {
         let mut o = vec![0.0; c];
         for (f, cell) in data.chunks_exact(c).enumerate() {
             let wf = w.as_ref().map_or(1.0, |w| w[f]);
-            for k in 0..c {
-                y[k] = self.curve.forward(wf * cell[k] as f64, k);
-            }
-            match &self.colour {
-                Some(col) => col.forward(&y, &mut o),
-                None => o.copy_from_slice(&y),
-            }
+            self.forward_cell(cell, wf, &mut y, &mut o);
             visit(f, &o);
+        }
+    }
+
+    /// One cell's transformed components `out`, as [`Transform::for_each_cell`] visits them:
+    /// `wf` the cell's weight ([`Transform::cell_weights`]; 1 unweighted), `y` scratch.
+    #[inline]
+    pub fn forward_cell(&self, cell: &[f32], wf: f64, y: &mut [f64], out: &mut [f64]) {
+        for (k, (y, &x)) in y.iter_mut().zip(cell).enumerate() {
+            *y = self.curve.forward(wf * x as f64, k);
+        }
+        match &self.colour {
+            Some(col) => col.forward(y, out),
+            None => out.copy_from_slice(y),
         }
     }
 

@@ -142,6 +142,19 @@ impl Rows {
 /// Inverse of [`Predictor::residuals_i32`] from the shuffled stream: every cell's values
 /// (invalid cells 0), identical to [`Predictor::reconstruct_i32`] after an unshuffle.
 pub fn reconstruct_i32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<Vec<i32>> {
+    let mut out = vec![0i32; shape.valid.len() * shape.channels];
+    reconstruct_i32_with(p, shuffled, shape, |i, x| out[i] = x)?;
+    Ok(out)
+}
+
+/// [`reconstruct_i32`] handed to `put(index, value)` for every value in order (invalid cells
+/// 0), so that the caller stores it where it wants (a decoder, in its output buffer).
+pub fn reconstruct_i32_with(
+    p: &Predictor,
+    shuffled: &[u8],
+    shape: &Shape,
+    mut put: impl FnMut(usize, i32),
+) -> Result<()> {
     let c = shape.channels;
     let st = Stencil::new(&p.orders, shape.dims, c)?;
     let planes = Planes::split(shuffled)?;
@@ -150,7 +163,6 @@ pub fn reconstruct_i32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
     let in_row: Vec<(usize, i32)> = rows.in_row.iter().map(|&(o, k)| (o, k as i32)).collect();
     let earlier: Vec<(usize, i32)> = rows.earlier.iter().map(|&(o, k)| (o, k as i32)).collect();
     let row_values = rows.last * c;
-    let mut out = vec![0i32; shape.valid.len() * c];
     let mut rest = vec![0i32; row_values];
     let mut r = vec![0i32; row_values];
     let mut next = 0usize;
@@ -168,6 +180,7 @@ pub fn reconstruct_i32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
                 // Fill: the previous sample along the fastest axis (0 at the row start).
                 for ch in 0..c {
                     w[i + ch] = if k > 0 { w[i + ch - c] } else { 0 };
+                    put((cell0 + k) * c + ch, 0);
                 }
                 continue;
             }
@@ -180,11 +193,11 @@ pub fn reconstruct_i32(p: &Predictor, shuffled: &[u8], shape: &Shape) -> Result<
                 let x = pred.wrapping_add(r[j]);
                 j += 1;
                 w[ii] = x;
-                out[(cell0 + k) * c + ch] = x;
+                put((cell0 + k) * c + ch, x);
             }
         }
     });
-    Ok(out)
+    Ok(())
 }
 
 dispatch!(fn earlier_sum_i32 / earlier_sum_i32_avx2 => earlier_impl(w: &[i32], base: usize, terms: &[(usize, i32)], rest: &mut [i32]));
@@ -228,17 +241,8 @@ pub fn reconstruct_f32_into(
         )));
     }
     if p.space == Space::Integer {
-        let keys = reconstruct_i32(p, shuffled, shape)?;
-        for ((o, k), &ok) in out
-            .chunks_exact_mut(c)
-            .zip(keys.chunks_exact(c))
-            .zip(shape.valid)
-        {
-            for (o, &k) in o.iter_mut().zip(k) {
-                *o = if ok { float_of(k) } else { 0.0 };
-            }
-        }
-        return Ok(());
+        // Invalid cells are handed key 0, the float 0.
+        return reconstruct_i32_with(p, shuffled, shape, |i, k| out[i] = float_of(k));
     }
     let st = Stencil::new(&p.orders, shape.dims, c)?;
     let planes = Planes::split(shuffled)?;

@@ -397,9 +397,12 @@ impl CodecRequest {
                     colour: None,
                     weight: *weight,
                 };
-                let z = transform.forward_all(table.data(), c, table.grid(), table.valid());
-                let max_abs =
-                    valid_values(&z, table.valid(), c).fold(0.0f64, |m, v| m.max(v.abs()));
+                let mut max_abs = 0.0f64;
+                transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
+                    if table.valid()[f] {
+                        max_abs = z.iter().fold(max_abs, |m, v| m.max(v.abs()));
+                    }
+                });
                 CodecSpec::Quantized {
                     domain: Domain::DropInvalid,
                     transform,
@@ -420,20 +423,20 @@ impl CodecRequest {
                 level,
             } => {
                 let transform = transform_for(table, *curve, *colour, *weight);
-                let z = transform.forward_all(table.data(), c, table.grid(), table.valid());
-                let (lo, hi): (Vec<f64>, Vec<f64>) = (0..c)
-                    .map(|k| {
-                        let (lo, hi) = z
-                            .chunks_exact(c)
-                            .zip(table.valid())
-                            .filter(|(_, ok)| **ok)
-                            .fold((f64::MAX, f64::MIN), |(lo, hi), (v, _)| {
-                                (lo.min(v[k]), hi.max(v[k]))
-                            });
-                        // No valid cell: an empty range at 0.
-                        if hi >= lo { (lo, hi) } else { (0.0, 0.0) }
-                    })
-                    .unzip();
+                let (mut lo, mut hi) = (vec![f64::MAX; c], vec![f64::MIN; c]);
+                transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
+                    if table.valid()[f] {
+                        for k in 0..c {
+                            (lo[k], hi[k]) = (lo[k].min(z[k]), hi[k].max(z[k]));
+                        }
+                    }
+                });
+                // No valid cell: an empty range at 0.
+                for k in 0..c {
+                    if hi[k] < lo[k] {
+                        (lo[k], hi[k]) = (0.0, 0.0);
+                    }
+                }
                 CodecSpec::Quantized {
                     domain: Domain::DropInvalid,
                     transform,
