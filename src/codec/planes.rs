@@ -15,6 +15,25 @@ pub fn dct_coefficients(table: &Table, transform: &Transform) -> Result<Vec<Vec<
         .collect())
 }
 
+/// The DCT coefficients of [`dct_coefficients`], each plane checked against its step
+/// ([`dct::check_range`]) and quantized by `quantize(coefficients, k)` as soon as it is made:
+/// the f64 coefficients of one plane are held at a time, not those of every plane.
+pub fn quantized_dct_planes(
+    table: &Table,
+    transform: &Transform,
+    steps: &[f64],
+    quantize: impl Fn(&[f64], usize) -> dct::Coefficients,
+) -> Result<Vec<dct::Coefficients>> {
+    let dims = table.grid().shape();
+    (0..table.channels().len())
+        .map(|k| {
+            let p = dct::forward_owned(filled_plane(table, transform, k), &dims);
+            dct::check_range(&p, steps[k])?;
+            Ok(quantize(&p, k))
+        })
+        .collect()
+}
+
 /// Plane `k` of [`filled_planes`], the same bits, made alone: the invalid cells of each
 /// plane are filled from that plane only.
 pub fn filled_plane(table: &Table, transform: &Transform, k: usize) -> Vec<f64> {

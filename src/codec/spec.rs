@@ -455,16 +455,12 @@ impl CodecSpec {
                 entropy,
                 ..
             } => {
-                let coefs = dct_coefficients(table, transform)?;
-                for (p, &s) in coefs.iter().zip(&stage.step) {
-                    dct::check_range(p, s)?;
-                }
-                let comps: Vec<_> = coefs
-                    .iter()
-                    .zip(&stage.step)
-                    .map(|(p, &s)| dct::quantize(p, &dims, s))
-                    .collect();
-                entropy.compress(&dct::serialize(&comps))
+                let comps = quantized_dct_planes(table, transform, &stage.step, |p, k| {
+                    dct::quantize(p, &dims, stage.step[k])
+                })?;
+                let bytes = dct::serialize(&comps);
+                drop(comps);
+                entropy.compress(&bytes)
             }
             CodecSpec::DctContext {
                 domain,
@@ -473,14 +469,22 @@ impl CodecSpec {
                 coding,
                 ..
             } => {
-                let coefs = dct_coefficients_for(table, transform, *domain, &stage.step, coding)?;
-                for (p, &s) in coefs.iter().zip(&stage.step) {
-                    dct::check_range(p, s)?;
-                }
-                Ok(coefcode::encode_model(
-                    &coefcode::quantize_all(&coefs, &dims, &stage.step, coding.deadzone),
-                    coding.model,
-                ))
+                let comps = match domain {
+                    // The refined fill iterates on every plane together: all planes'
+                    // coefficients at once. Otherwise one plane's at a time.
+                    Domain::FillRefined { .. } => {
+                        let coefs =
+                            dct_coefficients_for(table, transform, *domain, &stage.step, coding)?;
+                        for (p, &s) in coefs.iter().zip(&stage.step) {
+                            dct::check_range(p, s)?;
+                        }
+                        coefcode::quantize_all(&coefs, &dims, &stage.step, coding.deadzone)
+                    }
+                    _ => quantized_dct_planes(table, transform, &stage.step, |p, k| {
+                        coefcode::quantize_deadzone(p, &dims, stage.step[k], coding.deadzone)
+                    })?,
+                };
+                Ok(coefcode::encode_model(&comps, coding.model))
             }
             CodecSpec::Tucker {
                 transform,
