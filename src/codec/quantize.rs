@@ -117,9 +117,10 @@ impl Quantizer {
         }
     }
 
-    /// [`Quantizer::decode_all_f32`] in place: `buf` holds each code's bits
-    /// (`f32::from_bits(q as u32)`) and gets its value, so that a decoder needs no array of
-    /// codes beside its output.
+    /// [`Quantizer::decode`] of many codes (component = index mod `c`), rounded to f32, in
+    /// place: `buf` holds each code's bits (`f32::from_bits(q as u32)`) and gets its value
+    /// (f16 codes through `half`'s bulk conversion, F16C when the CPU has it), so that a
+    /// decoder needs no array of codes beside its output.
     pub fn decode_bits_in_place(&self, buf: &mut [f32], c: usize) {
         match self {
             Quantizer::F16 { scale } => {
@@ -148,15 +149,6 @@ impl Quantizer {
                 }
             }
         }
-    }
-
-    /// [`Quantizer::decode`] of many codes (component = index mod `c`), rounded to f32: the
-    /// same values; f16 codes go through `half`'s bulk slice conversion (F16C when the CPU
-    /// has it).
-    pub fn decode_all_f32(&self, codes: &[i32], c: usize) -> Vec<f32> {
-        let mut out: Vec<f32> = codes.iter().map(|&q| f32::from_bits(q as u32)).collect();
-        self.decode_bits_in_place(&mut out, c);
-        out
     }
 }
 
