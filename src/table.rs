@@ -2,7 +2,7 @@
 
 use crate::brdf::{Brdf, Channels};
 use crate::geometry::Vec3;
-use crate::grid::{Grid, InterpSpace, InterpWeight};
+use crate::grid::{CellCosProducts, Grid, InterpSpace, InterpWeight};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -315,7 +315,7 @@ impl Table {
                     &self.valid[..],
                     out,
                     log,
-                    |flat| cells[flat] as f64,
+                    |flat| cells.at(flat) as f32 as f64,
                     inv_q,
                 ),
                 QueryWeight::Horizon => {}
@@ -328,7 +328,7 @@ impl Table {
             }
             QueryWeight::Cosine { cells, inv_q } => {
                 self.interpolate_masked(&t, interp, &layout, &self.valid[..], out, |flat, w| {
-                    cosine_weight(w, cells[flat], inv_q)
+                    cosine_weight(w, cells.at(flat) as f32, inv_q)
                 })
             }
             QueryWeight::Horizon => {}
@@ -365,12 +365,12 @@ impl Table {
         }
     }
 
-    /// cos θi · cos θo of every cell's sample pair (f32: the weights need no more, and a
-    /// 64⁴ grid's array stays at 67 MB), built once.
-    fn cell_cos_products(&self) -> &[f32] {
-        self.cos
-            .0
-            .get_or_init(|| self.grid.cos_products().iter().map(|&c| c as f32).collect())
+    /// cos θi · cos θo of every cell's sample pair (read as f32: the weights need no more),
+    /// built once, over the axes it depends on (a 64⁴ grid's 16.8 M cells read 262,144
+    /// values: a per-cell array was 67 MB held for the table's life, and 134 MB more while
+    /// built).
+    fn cell_cos_products(&self) -> &CellCosProducts {
+        self.cos.0.get_or_init(|| self.grid.cell_cos_products())
     }
 
     /// The pair's continuous index along every axis (storage order); `None` outside the
@@ -552,7 +552,7 @@ impl Table {
                     let weight = self.query_weight(wi, wo);
                     let weigh = |flat: usize, w: f64| match &weight {
                         QueryWeight::Cosine { cells, inv_q } => {
-                            cosine_weight(w, cells[flat], *inv_q)
+                            cosine_weight(w, cells.at(flat) as f32, *inv_q)
                         }
                         _ => w,
                     };
@@ -590,11 +590,19 @@ impl Table {
                 st
             })
             .collect();
+        // Sized once: grown by doubling, the arrays of a 4-D grid's estimation set (16
+        // neighbours a pair) were reallocated past twice their size at the planner's peak.
+        let total = |f: &dyn Fn(&Stencil) -> usize| parts.iter().map(f).sum::<usize>();
         let mut st = Stencil {
             channels: self.channels.len(),
             cells_in_grid: self.grid.cells(),
             log,
-            ..Default::default()
+            ends: Vec::with_capacity(total(&|p| p.ends.len())),
+            cells: Vec::with_capacity(total(&|p| p.cells.len())),
+            weights: Vec::with_capacity(total(&|p| p.weights.len())),
+            after: Vec::with_capacity(total(&|p| p.after.len())),
+            pre: Vec::with_capacity(total(&|p| p.pre.len())),
+            post: Vec::with_capacity(total(&|p| p.post.len())),
         };
         for p in parts {
             let base = st.cells.len();
@@ -613,11 +621,17 @@ impl Table {
     /// [`Table::interpolate_log`].
     fn push_log_stencil(&self, st: &mut Stencil, wi: Vec3, wo: Vec3, layout: &Layout) {
         let weight = self.query_weight(wi, wo);
-        let (pre, post): (Option<&[f32]>, f64) = match &weight {
+        let (pre, post): (Option<&CellCosProducts>, f64) = match &weight {
             QueryWeight::Cosine { cells, inv_q } => (Some(cells), *inv_q),
             _ => (None, 1.0),
         };
-        let pre_of = |flat: usize| pre.map_or(1.0f32, |c| c[flat]);
+        // Only a cosine-weighted grid's neighbours have factors: on a plain grid every one
+        // would be 1 (12 MB of ones for a 4-D grid's estimation and check sets).
+        let push_pre = |st: &mut Stencil, flat: usize| {
+            if let Some(c) = pre {
+                st.pre.push(c.at(flat) as f32);
+            }
+        };
         let mut after = After::None;
         let t = match weight {
             QueryWeight::Horizon => None,
@@ -628,7 +642,7 @@ impl Table {
                 self.corners_masked(&t, Interp::Linear, layout, &self.valid[..], |flat, w| {
                     st.cells.push(flat as u32);
                     st.weights.push(w);
-                    st.pre.push(pre_of(flat));
+                    push_pre(st, flat);
                 });
             if wsum > 0.0 {
                 after = After::Divide(wsum);
@@ -637,7 +651,7 @@ impl Table {
                 if let Some(f) = self.nearest_valid(&tcont[..d], &layout.strides[..d]) {
                     st.cells.push(f as u32);
                     st.weights.push(1.0);
-                    st.pre.push(pre_of(f));
+                    push_pre(st, f);
                     after = After::Hold(f);
                 }
             }
@@ -1193,7 +1207,7 @@ impl PartialEq for BitsCache {
 /// Per-cell cos θi · cos θo of a cosine-weighted grid, built on first use; like
 /// [`BitsCache`], a cache that is not part of the table's value.
 #[derive(Clone, Debug, Default)]
-struct CosCache(std::sync::OnceLock<Vec<f32>>);
+struct CosCache(std::sync::OnceLock<CellCosProducts>);
 
 impl PartialEq for CosCache {
     fn eq(&self, _: &CosCache) -> bool {
@@ -1223,7 +1237,7 @@ enum QueryWeight<'a> {
     Plain,
     /// f·cos θi·cos θo interpolated, divided by the query's own product (1/q = `inv_q`).
     Cosine {
-        cells: &'a [f32],
+        cells: &'a CellCosProducts,
         inv_q: f64,
     },
     /// A cosine-weighted grid queried on the horizon: 0.
@@ -1373,13 +1387,24 @@ pub struct Stencil {
     after: Vec<After>,
     /// Log-space grids ([`InterpSpace::Log`]): the space, each neighbour's factor inside the
     /// log (its cos θi·cos θo on cosine-weighted grids, else 1) and each pair's factor after
-    /// it; `Hold` then holds the pair's one listed cell. Empty otherwise.
+    /// it; `Hold` then holds the pair's one listed cell. Empty otherwise, and `pre` is empty
+    /// on a log-space grid without the cosine weight (every factor 1).
     log: Option<LogSpace>,
     pre: Vec<f32>,
     post: Vec<f64>,
 }
 
 impl Stencil {
+    /// Neighbour k's factor inside the log (1 when the grid has no cosine weight).
+    #[inline]
+    fn pre_at(&self, k: usize) -> f64 {
+        if self.pre.is_empty() {
+            1.0
+        } else {
+            self.pre[k] as f64
+        }
+    }
+
     /// Pairs covered.
     pub fn len(&self) -> usize {
         self.ends.len()
@@ -1471,17 +1496,14 @@ impl Stencil {
         let post = self.post[p];
         o.fill(0.0);
         if let After::Hold(_) = self.after[p] {
-            let (flat, m) = (
-                self.cells[range.start] as usize,
-                self.pre[range.start] as f64,
-            );
+            let (flat, m) = (self.cells[range.start] as usize, self.pre_at(range.start));
             for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                 *o = post * (m * v as f64);
             }
             return;
         }
         for k in range {
-            let (flat, w, m) = (self.cells[k] as usize, self.weights[k], self.pre[k] as f64);
+            let (flat, w, m) = (self.cells[k] as usize, self.weights[k], self.pre_at(k));
             for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                 *o += w * log.to_log(m * v as f64);
             }

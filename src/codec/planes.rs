@@ -54,6 +54,26 @@ pub fn filled_plane(table: &Table, transform: &Transform, k: usize) -> Vec<f64> 
     plane
 }
 
+/// [`filled_plane`] in f32 (each transformed value rounded once, the fill copying them):
+/// for a plane too large to hold in f64 beside its table ([`super::dct::forward_owned_f32`]).
+pub fn filled_plane_f32(table: &Table, transform: &Transform, k: usize) -> Vec<f32> {
+    let dims = table.grid().shape();
+    let c = table.channels().len();
+    let mut plane = vec![0f32; table.grid().cells()];
+    transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
+        plane[f] = z[k] as f32;
+    });
+    let mut planes = [plane];
+    domain::fill_invalid(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &fill_order(table.grid().kind()),
+    );
+    let [plane] = planes;
+    plane
+}
+
 /// The transformed component planes with the invalid cells filled ([`domain::fill_invalid`]):
 /// what the DCT and Tucker stages decompose.
 pub fn filled_planes(table: &Table, transform: &Transform) -> Vec<Vec<f64>> {

@@ -3,7 +3,7 @@
 //! the Karhunen–Loève transform of the table's channels, recorded in the header). The coded
 //! components of a cell are z = M curve(w·x); the decoder returns curve⁻¹(Mᵀ z) / w.
 
-use crate::grid::Grid;
+use crate::grid::{CellCosProducts, Grid};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -278,14 +278,12 @@ impl Weight {
     /// The weight of every cell of `grid`: valid cells floored at [`W_MIN`] (a NaN product
     /// reads as the floor: `f64::max` drops NaN), invalid cells 1 (never coded; 1 keeps the
     /// filled values of the DCT chains as they are).
-    pub fn cells(self, grid: &Grid, valid: &[bool]) -> Vec<f64> {
+    pub fn cells<'v>(self, grid: &Grid, valid: &'v [bool]) -> CellWeights<'v> {
         match self {
-            Weight::Cosine => grid
-                .cos_products()
-                .into_iter()
-                .zip(valid)
-                .map(|(w, &ok)| if ok { w.max(W_MIN) } else { 1.0 })
-                .collect(),
+            Weight::Cosine => CellWeights {
+                floored: grid.cell_cos_products().map(|w| w.max(W_MIN)),
+                valid,
+            },
         }
     }
 
@@ -294,6 +292,37 @@ impl Weight {
         match self {
             Weight::Cosine => "cosine",
         }
+    }
+}
+
+/// The weights of a grid's cells ([`Weight::cells`]), indexed by cell: computed from the
+/// axes the cosine product depends on, not stored per cell (an f64 array of a 16.8 M-cell
+/// grid is 134 MB).
+pub struct CellWeights<'v> {
+    floored: CellCosProducts,
+    valid: &'v [bool],
+}
+
+impl std::ops::Index<usize> for CellWeights<'_> {
+    type Output = f64;
+    #[inline]
+    fn index(&self, cell: usize) -> &f64 {
+        if self.valid[cell] {
+            self.floored.get(cell)
+        } else {
+            &1.0
+        }
+    }
+}
+
+impl CellWeights<'_> {
+    /// Cells weighted.
+    pub fn len(&self) -> usize {
+        self.valid.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.valid.is_empty()
     }
 }
 
@@ -381,14 +410,14 @@ impl Transform {
     }
 
     /// The weight of every cell (see [`Weight::cells`]), `None` when unweighted.
-    pub fn cell_weights(&self, grid: &Grid, valid: &[bool]) -> Option<Vec<f64>> {
+    pub fn cell_weights<'v>(&self, grid: &Grid, valid: &'v [bool]) -> Option<CellWeights<'v>> {
         self.weight.map(|w| w.cells(grid, valid))
     }
 
     /// 1/w of every cell in f32, for the decoders' final multiply (≤ 1/[`W_MIN`], finite).
     pub fn reciprocal_weights(&self, grid: &Grid, valid: &[bool]) -> Option<Vec<f32>> {
         self.cell_weights(grid, valid)
-            .map(|w| w.iter().map(|&w| (1.0 / w) as f32).collect())
+            .map(|w| (0..w.len()).map(|f| (1.0 / w[f]) as f32).collect())
     }
 
     /// Transformed components of every cell (cell-major, component fastest), in f64; the
@@ -515,8 +544,8 @@ mod tests {
         let raw = g.cos_products();
         let w = Weight::Cosine.cells(&g, &all);
         assert!(raw.contains(&0.0) && raw.iter().any(|&p| p > 0.9));
-        for (f, (&p, &w)) in raw.iter().zip(&w).enumerate() {
-            assert_eq!(w, p.max(W_MIN), "cell {f}");
+        for (f, &p) in raw.iter().enumerate() {
+            assert_eq!(w[f], p.max(W_MIN), "cell {f}");
         }
         let w = Weight::Cosine.cells(&g, &geo);
         for (f, (&p, &ok)) in raw.iter().zip(&geo).enumerate() {

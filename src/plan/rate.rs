@@ -30,7 +30,7 @@ use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
-    transform_with_curve,
+    filled_plane_f32, transform_with_curve,
 };
 use crate::table::Table;
 use crate::{Error, Result};
@@ -459,9 +459,14 @@ fn encode(
     })))
 }
 
+/// Above this many cells (a plane of 64 MiB in f64) the rate control's planes are made and
+/// transformed in f32 (2²³: every MERL-sized grid and its refinements up to 180³ keep f64,
+/// and their files their bytes).
+const F32_PLANE_CELLS: usize = 1 << 23;
+
 /// The curve's transform at `scale` × the metrics' ε `epsilon` and its DCT coefficients in
-/// f32, with
-/// the largest |c| of the f64 ones.
+/// f32, with the largest |c| of the f64 ones (of the f32 ones for a plane over
+/// [`F32_PLANE_CELLS`]).
 fn transform_and_coefficients(
     table: &Table,
     epsilon: f64,
@@ -492,9 +497,17 @@ fn transform_and_coefficients(
     // crosses a rounding or dead-zone boundary. The largest magnitude, which sets the
     // bisection's range of steps, is taken from the f64 values. Each plane is made,
     // transformed in its own array and narrowed one at a time.
+    // A plane over F32_PLANE_CELLS is made and transformed in f32 storage instead
+    // ([`dct::forward_owned_f32`]): in f64 it alone would be twice a one-channel table.
     let mut max_coef = 0.0f64;
+    let large = table.grid().cells() > F32_PLANE_CELLS;
     let coefs: Vec<Vec<f32>> = (0..c)
         .map(|k| {
+            if large {
+                let f = dct::forward_owned_f32(filled_plane_f32(table, &transform, k), &dims);
+                max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs() as f64));
+                return f;
+            }
             let f = dct::forward_owned(filled_plane(table, &transform, k), &dims);
             max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs()));
             f.iter().map(|&c| c as f32).collect()
