@@ -366,9 +366,8 @@ impl Table {
     }
 
     /// cos θi · cos θo of every cell's sample pair (read as f32: the weights need no more),
-    /// built once, over the axes it depends on (a 64⁴ grid's 16.8 M cells read 262,144
-    /// values: a per-cell array was 67 MB held for the table's life, and 134 MB more while
-    /// built).
+    /// from per-axis tables built once (a per-cell array was 67 MB on a 64⁴ grid, held for
+    /// the table's life, and 134 MB more while built).
     fn cell_cos_products(&self) -> &CellCosProducts {
         self.cos.0.get_or_init(|| self.grid.cell_cos_products())
     }

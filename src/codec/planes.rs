@@ -153,7 +153,7 @@ pub fn curve_for(table: &Table, req: CurveRequest, weight: Option<Weight>) -> Cu
             for (cell, &ok) in table.valid().iter().enumerate() {
                 if ok {
                     n += 1;
-                    let wf = w.as_ref().map_or(1.0, |w| w[cell]);
+                    let wf = w.as_ref().map_or(1.0, |w| w.at(cell));
                     for (k, s) in sum.iter_mut().enumerate() {
                         let x = table.data()[cell * c + k];
                         *s += wf * if signed { x.abs() } else { x.max(0.0) } as f64;

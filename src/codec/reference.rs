@@ -53,7 +53,7 @@ pub fn decode(spec: &CodecSpec, payload: &[u8], layout: &Layout) -> Result<Vec<f
                     for k in 0..c {
                         z[k] = quantize.decode(codes[cell * c + k], k);
                     }
-                    let wf = w.as_ref().map_or(1.0, |w| w[cell]);
+                    let wf = w.as_ref().map_or(1.0, |w| w.at(cell));
                     transform.inverse_cell(&z, &mut y, wf, &mut out[cell * c..(cell + 1) * c]);
                 }
             }
@@ -223,7 +223,7 @@ fn inverse_planes(t: &Transform, planes: &[Vec<f32>], layout: &Layout, c: usize)
                 None => z[k],
             };
             *ok = match &w {
-                Some(w) => finite_f32(t.curve.inverse_f32(y, k) as f64 / w[f]),
+                Some(w) => finite_f32(t.curve.inverse_f32(y, k) as f64 / w.at(f)),
                 None => t.curve.inverse_f32(y, k),
             };
         }

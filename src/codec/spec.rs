@@ -426,7 +426,7 @@ impl CodecSpec {
                         let cell = i / c;
                         if cell != current {
                             current = cell;
-                            let wf = weights.as_ref().map_or(1.0, |w| w[cell]);
+                            let wf = weights.as_ref().map_or(1.0, |w| w.at(cell));
                             transform.forward_cell(
                                 &data[cell * c..(cell + 1) * c],
                                 wf,

@@ -177,11 +177,11 @@ fn assert_matches_reference(t: &Table, spec: &CodecSpec, what: &str) {
         .and_then(|t| t.cell_weights(layout.grid, layout.valid));
     let c = layout.channels;
     let scale = slow.iter().enumerate().fold(0f32, |m, (i, b)| {
-        m.max(b.abs() * weights.as_ref().map_or(1.0, |w| w[i / c]) as f32)
+        m.max(b.abs() * weights.as_ref().map_or(1.0, |w| w.at(i / c)) as f32)
     });
     for (i, (a, b)) in fast.iter().zip(&slow).enumerate() {
         // ε is in the units of the coded quantity w·x: ε/w in those of x.
-        let w = weights.as_ref().map_or(1.0, |w| w[i / c]) as f32;
+        let w = weights.as_ref().map_or(1.0, |w| w.at(i / c)) as f32;
         let eps = match curve {
             Some(Curve::Log { eps } | Curve::SignedLog { eps }) => eps[i % c] as f32 / w,
             _ => 0.0,
@@ -324,7 +324,7 @@ fn the_signed_log_curve_keeps_negative_values() {
                     continue;
                 }
                 // Relative to |x| + ε on both sides of 0: the steps above are fine ones.
-                let eps = eps / w.as_ref().map_or(1.0, |w| w[cell]);
+                let eps = eps / w.as_ref().map_or(1.0, |w| w.at(cell));
                 let rel = (a - b).abs() / (b.abs() + eps);
                 worst = worst.max(rel);
                 assert!(rel <= 0.05, "{s}: cell {cell}: {a} vs {b} (ε {eps})");
@@ -673,7 +673,7 @@ fn weighted_chains_meet_their_bound_in_the_weighted_space_on_every_grid_kind() {
                     .sqrt()
             };
             let rounding = |f: usize, k: usize| match &tr.curve {
-                Curve::Linear => 4.8e-7 * (w[f] * t.data()[f * c + k].abs() as f64 + norm(f)),
+                Curve::Linear => 4.8e-7 * (w.at(f) * t.data()[f * c + k].abs() as f64 + norm(f)),
                 Curve::Log { .. } | Curve::SignedLog { .. } => 2.4e-7 * (2.0 + norm(f)),
             };
             let valid = |f: &usize| t.valid()[*f];
@@ -702,7 +702,7 @@ fn weighted_chains_meet_their_bound_in_the_weighted_space_on_every_grid_kind() {
                         assert!(
                             err <= bound + r + 1e-12,
                             "{what}: cell {f} w {}: {:?} vs {:?} (bound {bound})",
-                            w[f],
+                            w.at(f),
                             &za[zs.clone()],
                             &zb[zs]
                         );

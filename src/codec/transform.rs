@@ -281,7 +281,7 @@ impl Weight {
     pub fn cells<'v>(self, grid: &Grid, valid: &'v [bool]) -> CellWeights<'v> {
         match self {
             Weight::Cosine => CellWeights {
-                floored: grid.cell_cos_products().map(|w| w.max(W_MIN)),
+                cos: grid.cell_cos_products(),
                 valid,
             },
         }
@@ -295,27 +295,24 @@ impl Weight {
     }
 }
 
-/// The weights of a grid's cells ([`Weight::cells`]), indexed by cell: computed from the
-/// axes the cosine product depends on, not stored per cell (an f64 array of a 16.8 M-cell
-/// grid is 134 MB).
+/// The weights of a grid's cells ([`Weight::cells`]), computed per cell from the axes the
+/// cosine product depends on, not stored (an f64 array is 134 MB on a 16.8 M-cell grid).
 pub struct CellWeights<'v> {
-    floored: CellCosProducts,
+    cos: CellCosProducts,
     valid: &'v [bool],
 }
 
-impl std::ops::Index<usize> for CellWeights<'_> {
-    type Output = f64;
+impl CellWeights<'_> {
+    /// The weight of cell `f`.
     #[inline]
-    fn index(&self, cell: usize) -> &f64 {
-        if self.valid[cell] {
-            self.floored.get(cell)
+    pub fn at(&self, f: usize) -> f64 {
+        if self.valid[f] {
+            self.cos.at(f).max(W_MIN)
         } else {
-            &1.0
+            1.0
         }
     }
-}
 
-impl CellWeights<'_> {
     /// Cells weighted.
     pub fn len(&self) -> usize {
         self.valid.len()
@@ -417,7 +414,7 @@ impl Transform {
     /// 1/w of every cell in f32, for the decoders' final multiply (≤ 1/[`W_MIN`], finite).
     pub fn reciprocal_weights(&self, grid: &Grid, valid: &[bool]) -> Option<Vec<f32>> {
         self.cell_weights(grid, valid)
-            .map(|w| (0..w.len()).map(|f| (1.0 / w[f]) as f32).collect())
+            .map(|w| (0..w.len()).map(|f| (1.0 / w.at(f)) as f32).collect())
     }
 
     /// Transformed components of every cell (cell-major, component fastest), in f64; the
@@ -444,7 +441,7 @@ impl Transform {
         let mut y = vec![0.0; c];
         let mut o = vec![0.0; c];
         for (f, cell) in data.chunks_exact(c).enumerate() {
-            let wf = w.as_ref().map_or(1.0, |w| w[f]);
+            let wf = w.as_ref().map_or(1.0, |w| w.at(f));
             self.forward_cell(cell, wf, &mut y, &mut o);
             visit(f, &o);
         }
@@ -545,11 +542,11 @@ mod tests {
         let w = Weight::Cosine.cells(&g, &all);
         assert!(raw.contains(&0.0) && raw.iter().any(|&p| p > 0.9));
         for (f, &p) in raw.iter().enumerate() {
-            assert_eq!(w[f], p.max(W_MIN), "cell {f}");
+            assert_eq!(w.at(f), p.max(W_MIN), "cell {f}");
         }
         let w = Weight::Cosine.cells(&g, &geo);
         for (f, (&p, &ok)) in raw.iter().zip(&geo).enumerate() {
-            assert_eq!(w[f], if ok { p.max(W_MIN) } else { 1.0 }, "cell {f}");
+            assert_eq!(w.at(f), if ok { p.max(W_MIN) } else { 1.0 }, "cell {f}");
         }
         let t = Transform {
             curve: Curve::Linear,
@@ -669,13 +666,13 @@ mod tests {
                 if !ok {
                     continue;
                 }
-                t.inverse_cell(&z[f * 3..f * 3 + 3], &mut y, w[f], &mut back);
-                let floor = if log { e / w[f] } else { 0.0 };
+                t.inverse_cell(&z[f * 3..f * 3 + 3], &mut y, w.at(f), &mut back);
+                let floor = if log { e / w.at(f) } else { 0.0 };
                 for k in 0..3 {
                     let (b, want) = (back[k] as f64, x[f * 3 + k] as f64);
                     prop_assert!(b.is_finite());
                     prop_assert!((b - want).abs() <= 1e-5 * (want + floor) + 1e-30,
-                        "{spec} cell {f} w {}: {b} vs {want}", w[f]);
+                        "{spec} cell {f} w {}: {b} vs {want}", w.at(f));
                 }
             }
         }

@@ -802,55 +802,52 @@ impl Grid {
         out
     }
 
-    /// [`Grid::cos_products`], stored once per combination of the axes the product depends
-    /// on (θi, θo on spherical grids; θh, θd, φd on half/difference ones): the φ axes it
-    /// ignores would repeat every value (a 64⁴ halfdiff4 grid: 262,144 values, not 16.8 M).
-    /// The same bits as [`Grid::cos_products`] (tested).
+    /// [`Grid::cos_products`] without a per-cell array: each cell's product computed when
+    /// read, from the per-axis tables of the axes it depends on (θi, θo on spherical grids;
+    /// θh, θd, φd on half/difference ones), with the same operations, so the same bits
+    /// (tested). A per-cell f64 array is 134 MB on a 64⁴ grid, 33.5 MB on a 128×128×256 one.
     pub fn cell_cos_products(&self) -> CellCosProducts {
         let cos = |t: f64| if t == FRAC_PI_2 { 0.0 } else { t.cos() };
         let table = |k: usize, f: &dyn Fn(f64) -> f64| -> Vec<f64> {
             let a = &self.axes[k];
             (0..a.n).map(|i| f(a.sample(i))).collect()
         };
-        let n = |k: usize| self.axes[k].n;
-        // Dropping axis k of `n_k` values with `inner` cells after it maps an index x to
-        // (x / (n_k · inner)) · inner + x mod inner; applied from the innermost axis out.
-        let (values, drops) = match self.kind {
+        let place = |k: usize| AxisPlace {
+            stride: self.axes[k + 1..].iter().map(|a| a.n).product(),
+            n: self.axes[k].n,
+        };
+        match self.kind {
             GridKind::Spherical4 | GridKind::Spherical3 => {
-                let (o, drops) = match self.kind {
-                    GridKind::Spherical4 => (2, vec![(n(3), 1), (n(1), n(2))]),
-                    _ => (1, vec![(n(2), 1)]),
+                let o = if self.kind == GridKind::Spherical4 {
+                    2
+                } else {
+                    1
                 };
-                let (ci, co) = (table(0, &cos), table(o, &cos));
-                let mut v = Vec::with_capacity(ci.len() * co.len());
-                for &a in &ci {
-                    v.extend(co.iter().map(|&b| a.max(0.0) * b.max(0.0)));
+                CellCosProducts::Spherical {
+                    cos_i: table(0, &cos),
+                    cos_o: table(o, &cos),
+                    i: place(0),
+                    o: place(o),
                 }
-                (v, drops)
             }
             GridKind::Halfdiff3 | GridKind::Halfdiff4 => {
-                let (d, drops) = match self.kind {
-                    GridKind::Halfdiff4 => (2, vec![(n(1), n(2) * n(3))]),
-                    _ => (1, vec![]),
+                let d = if self.kind == GridKind::Halfdiff4 {
+                    2
+                } else {
+                    1
                 };
-                let (ch, sh) = (table(0, &cos), table(0, &f64::sin));
-                let (cd, sd) = (table(d, &cos), table(d, &f64::sin));
-                let cp = table(d + 1, &f64::cos);
-                let mut v = Vec::with_capacity(ch.len() * cd.len() * cp.len());
-                for h in 0..ch.len() {
-                    for j in 0..cd.len() {
-                        let a = ch[h] * cd[j];
-                        let b = sh[h] * sd[j];
-                        v.extend(cp.iter().map(|&c| {
-                            let t = b * c;
-                            (a - t).max(0.0) * (a + t).max(0.0)
-                        }));
-                    }
+                CellCosProducts::HalfDiff {
+                    cos_h: table(0, &cos),
+                    sin_h: table(0, &f64::sin),
+                    cos_d: table(d, &cos),
+                    sin_d: table(d, &f64::sin),
+                    cos_phi_d: table(d + 1, &f64::cos),
+                    h: place(0),
+                    d: place(d),
+                    phi_d: place(d + 1),
                 }
-                (v, drops)
             }
-        };
-        CellCosProducts { values, drops }
+        }
     }
 
     /// True for θ axes (used by interpolation to clamp rather than wrap).
@@ -859,38 +856,69 @@ impl Grid {
     }
 }
 
-/// cos θi · cos θo of a grid's cells ([`Grid::cell_cos_products`]), looked up by the
-/// cell's flat index.
+/// cos θi · cos θo of a grid's cells ([`Grid::cell_cos_products`]), computed by the cell's
+/// flat index.
 #[derive(Clone, Debug)]
-pub struct CellCosProducts {
-    values: Vec<f64>,
-    /// (values along the dropped axis, cells after it), innermost first.
-    drops: Vec<(usize, usize)>,
+pub enum CellCosProducts {
+    /// (θi, [φi,] θo, φo | Δφ): cos θi · cos θo, each clamped at 0.
+    Spherical {
+        cos_i: Vec<f64>,
+        cos_o: Vec<f64>,
+        i: AxisPlace,
+        o: AxisPlace,
+    },
+    /// (θh, [φh,] θd, φd): cos θi, cos θo = cos θh cos θd ∓ sin θh sin θd cos φd.
+    HalfDiff {
+        cos_h: Vec<f64>,
+        sin_h: Vec<f64>,
+        cos_d: Vec<f64>,
+        sin_d: Vec<f64>,
+        cos_phi_d: Vec<f64>,
+        h: AxisPlace,
+        d: AxisPlace,
+        phi_d: AxisPlace,
+    },
+}
+
+/// Where an axis's index sits in a flat cell index.
+#[derive(Clone, Copy, Debug)]
+pub struct AxisPlace {
+    stride: usize,
+    n: usize,
+}
+
+impl AxisPlace {
+    #[inline]
+    fn of(self, cell: usize) -> usize {
+        (cell / self.stride) % self.n
+    }
 }
 
 impl CellCosProducts {
     /// The product of the cell at flat (storage-order) index `cell`.
     #[inline]
     pub fn at(&self, cell: usize) -> f64 {
-        *self.get(cell)
-    }
-
-    /// [`CellCosProducts::at`] by reference.
-    #[inline]
-    pub fn get(&self, cell: usize) -> &f64 {
-        let mut x = cell;
-        for &(n, inner) in &self.drops {
-            x = (x / (n * inner)) * inner + x % inner;
+        match self {
+            CellCosProducts::Spherical { cos_i, cos_o, i, o } => {
+                cos_i[i.of(cell)].max(0.0) * cos_o[o.of(cell)].max(0.0)
+            }
+            CellCosProducts::HalfDiff {
+                cos_h,
+                sin_h,
+                cos_d,
+                sin_d,
+                cos_phi_d,
+                h,
+                d,
+                phi_d,
+            } => {
+                let (h, j) = (h.of(cell), d.of(cell));
+                let a = cos_h[h] * cos_d[j];
+                let b = sin_h[h] * sin_d[j];
+                let t = b * cos_phi_d[phi_d.of(cell)];
+                (a - t).max(0.0) * (a + t).max(0.0)
+            }
         }
-        &self.values[x]
-    }
-
-    /// `f` of every product (the same cells read it).
-    pub fn map(mut self, f: impl Fn(f64) -> f64) -> CellCosProducts {
-        for v in &mut self.values {
-            *v = f(*v);
-        }
-        self
     }
 }
 
