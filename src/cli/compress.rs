@@ -11,7 +11,7 @@ use crate::plan::budget::Budget;
 use crate::plan::pack::{PackInput, PackSettings, plan};
 use crate::plan::rate::Effort;
 use crate::plan::scene::Scene;
-use crate::plan::search::Evaluator;
+use crate::plan::search::encode_and_measure;
 use crate::reads::ReadSet;
 use crate::table::Table;
 use crate::tabulate::tabulate;
@@ -111,7 +111,7 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
         return run_budget(&a, Budget::parse(b)?, effort, &scene, &symmetry, reads);
     }
     let bar = Bar::new(a.quiet);
-    let table = read_table(
+    let mut table = read_table(
         &a.input,
         a.grid.as_deref(),
         &symmetry,
@@ -122,7 +122,10 @@ pub fn run(a: CompressArgs) -> anyhow::Result<i32> {
     let set = SampleSet::uniform(a.samples, a.seed);
     let req = CodecRequest::parse(a.codec.as_deref().unwrap_or("lossless"))?;
     let spec = req.resolve(&table)?;
-    let measured = Evaluator::new(&table, &set)?.measure(&spec)?;
+    // The table then holds what the payload decodes to: the file's header reads only its
+    // grid, channels, provenance, mask and (for a lossless codec, whose decode is the
+    // samples themselves) its exact values.
+    let measured = encode_and_measure(&mut table, &spec, &set)?;
     // The payload measured is the one written (encoding it again took as long again).
     let bytes = native::to_bytes_with_payload(&table, &measured.spec, &measured.payload)?;
     atomic::write_output(&a.output, &bytes)?;
