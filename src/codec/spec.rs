@@ -492,8 +492,9 @@ impl CodecSpec {
                 entropy,
                 ..
             } => {
-                let planes = filled_planes(table, transform);
-                entropy.compress(&tucker::encode(&planes, &dims, stage)?)
+                let c = table.channels().len();
+                let plane = |k| std::borrow::Cow::Owned(filled_plane(table, transform, k));
+                entropy.compress(&tucker::encode_each(c, plane, &dims, stage)?)
             }
         }
     }

@@ -39,6 +39,7 @@ use super::simd::{Finisher, dispatch, finish};
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 
 /// Stage parameters recorded in the header.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -485,10 +486,21 @@ pub fn max_stream(dims: &[usize], stage: &TuckerStage) -> Option<usize> {
 
 /// Encodes the filled component planes into the raw stream.
 pub fn encode(planes: &[Vec<f64>], dims: &[usize], stage: &TuckerStage) -> Result<Vec<u8>> {
-    let comps = planes
-        .iter()
+    encode_each(planes.len(), |k| Cow::Borrowed(&planes[k]), dims, stage)
+}
+
+/// [`encode`] of the `components` planes `plane(k)` makes, each made, decomposed and freed
+/// before the next (the components are decomposed independently): one f64 plane at a time
+/// instead of all of them (100 MB for the 52 MiB table of docs/robustness.md).
+pub fn encode_each<'p>(
+    components: usize,
+    plane: impl Fn(usize) -> Cow<'p, [f64]>,
+    dims: &[usize],
+    stage: &TuckerStage,
+) -> Result<Vec<u8>> {
+    let comps = (0..components)
         .zip(&stage.step)
-        .map(|(p, &s)| quantize_plane(p, dims, &stage.ranks, s, stage.factor_step))
+        .map(|(k, &s)| quantize_plane(&plane(k), dims, &stage.ranks, s, stage.factor_step))
         .collect::<Result<Vec<_>>>()?;
     Ok(serialize(&comps))
 }
