@@ -150,11 +150,31 @@ pub fn check_thread_env() -> Result<()> {
     Ok(())
 }
 
+std::thread_local! {
+    static FALLIBLE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `f` with this thread's allocation failures left to the caller (`try_reserve`'s
+/// `Err`), for an allocator that otherwise ends the process on one (the binary's: a clean
+/// exit 1 instead of Rust's abort, exit 134).
+pub fn fallibly<R>(f: impl FnOnce() -> R) -> R {
+    let before = FALLIBLE.with(|c| c.replace(true));
+    let r = f();
+    FALLIBLE.with(|c| c.set(before));
+    r
+}
+
+/// True inside [`fallibly`] on this thread: an allocation that fails here is reported to its
+/// caller. Allocation-free (an allocator may call it).
+pub fn allocation_may_fail() -> bool {
+    FALLIBLE.try_with(|c| c.get()).unwrap_or(false)
+}
+
 /// `vec![value; n]` that returns an error naming `what` instead of aborting when the
 /// allocator refuses (the budget checks come first; this catches what they do not count).
 pub fn try_filled<T: Clone>(n: usize, value: T, what: &str) -> Result<Vec<T>> {
     let mut v = Vec::new();
-    v.try_reserve_exact(n).map_err(|_| {
+    fallibly(|| v.try_reserve_exact(n)).map_err(|_| {
         Error::Failure(format!(
             "{what}: could not allocate {}",
             human((n as u64).saturating_mul(std::mem::size_of::<T>() as u64))

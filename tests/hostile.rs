@@ -1327,6 +1327,43 @@ fn peak_memory_stays_within_twice_the_table_plus_64_mb() {
 }
 
 #[test]
+fn an_allocation_the_machine_refuses_ends_with_exit_1_and_a_message_not_an_abort() {
+    // Inside the budget (2 GiB), but not inside the address space: 64 MiB for a command
+    // whose table alone is 48 MiB. Rust's default is an abort (exit 134, "memory allocation
+    // of N bytes failed" and a backtrace); the binary's allocator ends with exit 1, one
+    // `brdfpack:` line, the temporary files removed and the previous output untouched.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("out.bpk"), b"previous").unwrap();
+    let mut cmd = Command::new("sh");
+    cmd.current_dir(d)
+        .env("RAYON_NUM_THREADS", "2")
+        .env("MALLOC_ARENA_MAX", "2")
+        .arg("-c")
+        .arg("ulimit -v 65536 && exec \"$0\" \"$@\"")
+        .arg(&*BIN)
+        .args([
+            "tabulate",
+            "ggx:alpha=0.3,fresnel=au",
+            "--grid",
+            "halfdiff3:128x128x256",
+            "-o",
+            "out.bpk",
+        ]);
+    let o = cmd.output().unwrap();
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "stderr: {e}");
+    assert!(
+        e.starts_with("brdfpack: out of memory: an allocation of "),
+        "{e}"
+    );
+    assert!(e.contains("no file written"), "{e}");
+    assert_eq!(e.lines().count(), 1, "{e}");
+    assert_eq!(std::fs::read(d.join("out.bpk")).unwrap(), b"previous");
+    assert!(temps_in(d).is_empty(), "{:?}", temps_in(d));
+}
+
+#[test]
 fn the_default_pack_peaks_within_128_mb() {
     // Issue 19's bound for `pack` on a MERL-sized table (90×90×180 RGB, 17.5 MB of f32): peak
     // RSS ≤ 128 MB. It peaked at 162–166 MB (f64 DCT coefficients, a second copy of the

@@ -33,6 +33,7 @@ mod convert_rgl;
 mod eval;
 mod inspect;
 mod models;
+mod oom;
 mod pack;
 mod plot;
 mod props;

@@ -42,7 +42,7 @@ pub fn read_input(path: &Path) -> Result<Vec<u8>> {
         ));
     }
     let mut buf = Vec::new();
-    buf.try_reserve_exact(meta.len() as usize)
+    crate::memory::fallibly(|| buf.try_reserve_exact(meta.len() as usize))
         .map_err(|_| Error::Failure(format!("{}: out of memory", path.display())))?;
     f.take(limit + 1)
         .read_to_end(&mut buf)

@@ -69,19 +69,30 @@ impl Drop for Registered {
     }
 }
 
+/// Removes every registered temporary file now, without allocating or taking a lock (safe
+/// in a signal handler, or in an allocator that has just failed: the binary's
+/// out-of-memory exit).
 #[cfg(unix)]
-extern "C" fn on_signal(sig: libc::c_int) {
+pub fn remove_registered_files() {
     for slot in &TEMPS {
         let p = slot.load(std::sync::atomic::Ordering::SeqCst);
         if !p.is_null() {
-            // SAFETY: `p` is a NUL-terminated name that is never freed; unlink and signal
-            // and raise are async-signal-safe.
+            // SAFETY: `p` is a NUL-terminated name that is never freed; unlink is
+            // async-signal-safe.
             unsafe {
                 libc::unlink(p);
             }
         }
     }
-    // SAFETY: as above.
+}
+
+#[cfg(not(unix))]
+pub fn remove_registered_files() {}
+
+#[cfg(unix)]
+extern "C" fn on_signal(sig: libc::c_int) {
+    remove_registered_files();
+    // SAFETY: signal and raise are async-signal-safe.
     unsafe {
         libc::signal(sig, libc::SIG_DFL);
         libc::raise(sig);
