@@ -37,31 +37,25 @@ pub fn quantized_dct_planes(
 /// Plane `k` of [`filled_planes`], the same bits, made alone: the invalid cells of each
 /// plane are filled from that plane only.
 pub fn filled_plane(table: &Table, transform: &Transform, k: usize) -> Vec<f64> {
-    let dims = table.grid().shape();
-    let c = table.channels().len();
-    let mut plane = vec![0.0; table.grid().cells()];
-    transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
-        plane[f] = z[k];
-    });
-    let mut planes = [plane];
-    domain::fill_invalid(
-        &mut planes,
-        &dims,
-        table.valid(),
-        &fill_order(table.grid().kind()),
-    );
-    let [plane] = planes;
-    plane
+    filled_plane_in(table, transform, k)
 }
 
 /// [`filled_plane`] in f32 (each transformed value rounded once, the fill copying them):
 /// for a plane too large to hold in f64 beside its table ([`super::dct::forward_owned_f32`]).
 pub fn filled_plane_f32(table: &Table, transform: &Transform, k: usize) -> Vec<f32> {
+    filled_plane_in(table, transform, k)
+}
+
+fn filled_plane_in<T: dct::PlaneValue + Default>(
+    table: &Table,
+    transform: &Transform,
+    k: usize,
+) -> Vec<T> {
     let dims = table.grid().shape();
     let c = table.channels().len();
-    let mut plane = vec![0f32; table.grid().cells()];
+    let mut plane = vec![T::default(); table.grid().cells()];
     transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
-        plane[f] = z[k] as f32;
+        plane[f] = T::narrow(z[k]);
     });
     let mut planes = [plane];
     domain::fill_invalid(

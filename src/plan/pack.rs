@@ -360,6 +360,15 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         if !refine || !more || refinements >= MAX_REFINEMENTS {
             break;
         }
+        // The best file so far is kept by its payload while finer grids are tabulated and
+        // encoded: its table's samples (what that payload decodes to, below `max` effort,
+        // whose encoder does not lend them) are made again at the end if it stays the best
+        // (a 64⁴ RGB table is 201 MB).
+        if settings.effort != Effort::Max
+            && let Some(b) = best.as_mut()
+        {
+            drop(b.1.lend_samples());
+        }
         // Which axis to refine is measured, not assumed: every axis doubled in turn, and the
         // grid whose own error uses the least of the budget is kept (a narrow peak wants θh,
         // the grazing 1/(cos θi cos θo) growth wants θd, anisotropy wants φ).
@@ -405,9 +414,23 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         current = cand;
         refinements += 1;
     }
-    let Some((k, table, grid, encoded, tabulate_s, encode_s)) = best else {
+    let Some((k, mut table, grid, encoded, tabulate_s, encode_s)) = best else {
         return Err(Error::Failure(no_grid_message(&settings.budget, &attempts)));
     };
+    if table.data().is_empty() && table.grid().cells() > 0 {
+        // Its samples were dropped during the refinements: the chosen file's decode again,
+        // as the encoder left them.
+        let values = table.grid().cells() * table.channels().len();
+        let mut samples = crate::memory::try_filled(values, 0f32, "the chosen table")?;
+        let decoded = encoded.spec.decode_into_with(
+            &encoded.payload,
+            &crate::codec::Layout::of(&table),
+            &mut samples,
+            &mut crate::codec::DecodeScratch::default(),
+        );
+        table.give_back_samples(samples);
+        decoded?;
+    }
     attempts[k].chosen = true;
     Ok(Planned {
         table,
