@@ -40,10 +40,20 @@ pub fn filled_plane(table: &Table, transform: &Transform, k: usize) -> Vec<f64> 
     filled_plane_in(table, transform, k)
 }
 
-/// [`filled_plane`] in f32 (each transformed value rounded once, the fill copying them):
-/// for a plane too large to hold in f64 beside its table ([`super::dct::forward_owned_f32`]).
-pub fn filled_plane_f32(table: &Table, transform: &Transform, k: usize) -> Vec<f32> {
-    filled_plane_in(table, transform, k)
+/// Every plane of [`filled_planes`] in f32 (each transformed value rounded once, the fill
+/// copying them): for planes too large to hold in f64 beside their table
+/// ([`super::dct::forward_owned_f32`]). Made in one pass (each cell's curve and colour once,
+/// not once per plane) and filled plane by plane: the same values as [`filled_plane`] of each,
+/// rounded.
+pub fn filled_planes_f32(table: &Table, transform: &Transform) -> Vec<Vec<f32>> {
+    let c = table.channels().len();
+    let mut planes = vec![vec![0f32; table.grid().cells()]; c];
+    transform_into(table, transform, &mut planes, |k| k);
+    let dims = table.grid().shape();
+    for p in planes.chunks_mut(1) {
+        domain::fill_invalid(p, &dims, table.valid(), &fill_order(table.grid().kind()));
+    }
+    planes
 }
 
 fn filled_plane_in<T: dct::PlaneValue + Default>(
@@ -52,12 +62,8 @@ fn filled_plane_in<T: dct::PlaneValue + Default>(
     k: usize,
 ) -> Vec<T> {
     let dims = table.grid().shape();
-    let c = table.channels().len();
-    let mut plane = vec![T::default(); table.grid().cells()];
-    transform.for_each_cell(table.data(), c, table.grid(), table.valid(), |f, z| {
-        plane[f] = T::narrow(z[k]);
-    });
-    let mut planes = [plane];
+    let mut planes = [vec![T::default(); table.grid().cells()]];
+    transform_into(table, transform, &mut planes, |_| k);
     domain::fill_invalid(
         &mut planes,
         &dims,
@@ -66,6 +72,45 @@ fn filled_plane_in<T: dct::PlaneValue + Default>(
     );
     let [plane] = planes;
     plane
+}
+
+/// `planes[i]` = component `component(i)` of every cell's transform (curve, weight, colour),
+/// the values [`Transform::for_each_cell`] visits. Each cell's transform is its own: made in
+/// parallel chunks (their logs were most of a 64⁴ RGB plane's time on one core).
+fn transform_into<T: dct::PlaneValue>(
+    table: &Table,
+    transform: &Transform,
+    planes: &mut [Vec<T>],
+    component: impl Fn(usize) -> usize + Sync,
+) {
+    use rayon::prelude::*;
+    const CHUNK: usize = 1 << 14;
+    let c = table.channels().len();
+    let cells = table.grid().cells();
+    let weights = transform.cell_weights(table.grid(), table.valid());
+    let data = table.data();
+    let mut per_chunk: Vec<Vec<&mut [T]>> = (0..cells.div_ceil(CHUNK))
+        .map(|_| Vec::with_capacity(planes.len()))
+        .collect();
+    for p in planes.iter_mut() {
+        for (i, ch) in p.chunks_mut(CHUNK).enumerate() {
+            per_chunk[i].push(ch);
+        }
+    }
+    per_chunk.into_par_iter().enumerate().for_each_init(
+        || (vec![0.0; c], vec![0.0; c]),
+        |(y, z), (i, mut outs)| {
+            let n = outs.first().map_or(0, |o| o.len());
+            for j in 0..n {
+                let f = i * CHUNK + j;
+                let wf = weights.as_ref().map_or(1.0, |w| w.at(f));
+                transform.forward_cell(&data[f * c..(f + 1) * c], wf, y, z);
+                for (p, out) in outs.iter_mut().enumerate() {
+                    out[j] = T::narrow(z[component(p)]);
+                }
+            }
+        },
+    );
 }
 
 /// The transformed component planes with the invalid cells filled ([`domain::fill_invalid`]):

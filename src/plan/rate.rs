@@ -30,7 +30,7 @@ use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
-    filled_plane_f32, transform_with_curve,
+    filled_planes_f32, transform_with_curve,
 };
 use crate::table::Table;
 use crate::{Error, Result};
@@ -499,15 +499,23 @@ fn transform_and_coefficients(
     // transformed in its own array and narrowed one at a time.
     // A plane over F32_PLANE_CELLS is made and transformed in f32 storage instead
     // ([`dct::forward_owned_f32`]): in f64 it alone would be twice a one-channel table.
+    // Its planes are made together (each cell's curve and colour once) and transformed in
+    // place: at the last plane the table and every plane are held, as the table and the
+    // coefficients of the others and the last plane were before.
     let mut max_coef = 0.0f64;
-    let large = table.grid().cells() > F32_PLANE_CELLS;
+    if table.grid().cells() > F32_PLANE_CELLS {
+        let coefs: Vec<Vec<f32>> = filled_planes_f32(table, &transform)
+            .into_iter()
+            .map(|p| {
+                let f = dct::forward_owned_f32(p, &dims);
+                max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs() as f64));
+                f
+            })
+            .collect();
+        return (transform, coefs, max_coef);
+    }
     let coefs: Vec<Vec<f32>> = (0..c)
         .map(|k| {
-            if large {
-                let f = dct::forward_owned_f32(filled_plane_f32(table, &transform, k), &dims);
-                max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs() as f64));
-                return f;
-            }
             let f = dct::forward_owned(filled_plane(table, &transform, k), &dims);
             max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs()));
             f.iter().map(|&c| c as f32).collect()
