@@ -37,7 +37,17 @@ pub fn quantized_dct_planes(
 /// Plane `k` of [`filled_planes`], the same bits, made alone: the invalid cells of each
 /// plane are filled from that plane only.
 pub fn filled_plane(table: &Table, transform: &Transform, k: usize) -> Vec<f64> {
-    filled_plane_in(table, transform, k)
+    let dims = table.grid().shape();
+    let mut planes = [vec![0.0; table.grid().cells()]];
+    transform_into(table, transform, &mut planes, |_| k);
+    domain::fill_invalid(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &fill_order(table.grid().kind()),
+    );
+    let [plane] = planes;
+    plane
 }
 
 /// Every plane of [`filled_planes`] in f32 (each transformed value rounded once, the fill
@@ -54,24 +64,6 @@ pub fn filled_planes_f32(table: &Table, transform: &Transform) -> Vec<Vec<f32>> 
         domain::fill_invalid(p, &dims, table.valid(), &fill_order(table.grid().kind()));
     }
     planes
-}
-
-fn filled_plane_in<T: dct::PlaneValue + Default>(
-    table: &Table,
-    transform: &Transform,
-    k: usize,
-) -> Vec<T> {
-    let dims = table.grid().shape();
-    let mut planes = [vec![T::default(); table.grid().cells()]];
-    transform_into(table, transform, &mut planes, |_| k);
-    domain::fill_invalid(
-        &mut planes,
-        &dims,
-        table.valid(),
-        &fill_order(table.grid().kind()),
-    );
-    let [plane] = planes;
-    plane
 }
 
 /// `planes[i]` = component `component(i)` of every cell's transform (curve, weight, colour),
