@@ -158,6 +158,9 @@ pub(crate) fn expand_axes(
     scratch: &mut DecodeScratch,
     mut pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
 ) -> (Vec<f32>, Vec<usize>) {
+    if scratch.is_lean() {
+        return expand_axes_in_place(cur, cur_dims, dims, order, scratch, pass);
+    }
     let mut next = scratch.take_f32(0);
     for &a in order {
         let n = dims[a];
@@ -174,6 +177,86 @@ pub(crate) fn expand_axes(
     (cur, cur_dims)
 }
 
+/// [`expand_axes`] in one array, for a single decode: each pass widens the data where it
+/// lies, blocks of the outer axes last first (a block's output never reaches the input of a
+/// block before it), each block's input copied out a tile of columns at a time (its output
+/// rows share the input's column stride, so a tile's output only lands on its own columns,
+/// already copied). The same `pass` on the same values: the same bits as the two arrays,
+/// whose second array, the size of the plane, is what this saves (tested).
+fn expand_axes_in_place(
+    mut cur: Vec<f32>,
+    mut cur_dims: Vec<usize>,
+    dims: &[usize],
+    order: &[usize],
+    scratch: &mut DecodeScratch,
+    mut pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
+) -> (Vec<f32>, Vec<usize>) {
+    // Columns per tile: a multiple of the kernels' vector widths, a few KB of each row.
+    const TILE: usize = 512;
+    // Values of the contiguous kernel's output per group of lines.
+    const GROUP: usize = 1 << 16;
+    let largest = order
+        .iter()
+        .scan(cur_dims.clone(), |shape, &a| {
+            shape[a] = dims[a];
+            Some(shape.iter().product::<usize>())
+        })
+        .fold(cur_dims.iter().product::<usize>(), usize::max);
+    DecodeScratch::grow(&mut cur, largest);
+    let mut tile_in = scratch.take_f32(0);
+    let mut tile_out = scratch.take_f32(0);
+    for &a in order {
+        let (e, n) = (cur_dims[a], dims[a]);
+        let outer: usize = cur_dims[..a].iter().product();
+        let inner: usize = cur_dims[a + 1..].iter().product();
+        if inner == 1 {
+            let lines = (GROUP / n.max(1)).max(1);
+            DecodeScratch::grow(&mut tile_in, lines * e);
+            let mut end = outer;
+            while end > 0 {
+                let start = end.saturating_sub(lines);
+                let k = end - start;
+                tile_in[..k * e].copy_from_slice(&cur[start * e..end * e]);
+                pass(a, &tile_in[..k * e], &mut cur[start * n..end * n], k, 1);
+                end = start;
+            }
+        } else {
+            // Tiles of TILE columns; a remainder narrower than a vector joins the tile before.
+            let mut tiles = Vec::new();
+            let mut x0 = 0;
+            while x0 < inner {
+                let mut w = TILE.min(inner - x0);
+                if inner - x0 - w < 8 {
+                    w = inner - x0;
+                }
+                tiles.push((x0, w));
+                x0 += w;
+            }
+            let widest = tiles.iter().map(|t| t.1).max().unwrap_or(0);
+            DecodeScratch::grow(&mut tile_in, e * widest);
+            DecodeScratch::grow(&mut tile_out, n * widest);
+            for o in (0..outer).rev() {
+                let (base_in, base_out) = (o * e * inner, o * n * inner);
+                for &(x0, w) in &tiles {
+                    for k in 0..e {
+                        let from = base_in + k * inner + x0;
+                        tile_in[k * w..(k + 1) * w].copy_from_slice(&cur[from..from + w]);
+                    }
+                    pass(a, &tile_in[..e * w], &mut tile_out[..n * w], 1, w);
+                    for k in 0..n {
+                        let to = base_out + k * inner + x0;
+                        cur[to..to + w].copy_from_slice(&tile_out[k * w..(k + 1) * w]);
+                    }
+                }
+            }
+        }
+        cur_dims[a] = n;
+    }
+    scratch.give_f32(tile_in);
+    scratch.give_f32(tile_out);
+    (cur, cur_dims)
+}
+
 /// The dequantized box expanded along the axes of `order` (in that order): the array (from
 /// `scratch`, possibly longer than its shape) and its shape (expanded axes at full
 /// resolution, the others at the box extent).
@@ -184,10 +267,28 @@ fn expand_along(
     order: &[usize],
     scratch: &mut DecodeScratch,
 ) -> (Vec<f32>, Vec<usize>) {
+    let cur = dequantize(c, step, scratch);
+    expand_dequantized(cur, c, dims, order, scratch)
+}
+
+/// The box's codes × step (from `scratch`, possibly longer than the box).
+fn dequantize(c: &Coefficients, step: f64, scratch: &mut DecodeScratch) -> Vec<f32> {
     let mut cur = scratch.take_f32(c.codes.len());
     for (d, &q) in cur.iter_mut().zip(&c.codes) {
         *d = (q as f64 * step) as f32;
     }
+    cur
+}
+
+/// [`expand_along`] of a box already dequantized into `cur` (`c` gives its extent; its
+/// codes are not read).
+fn expand_dequantized(
+    cur: Vec<f32>,
+    c: &Coefficients,
+    dims: &[usize],
+    order: &[usize],
+    scratch: &mut DecodeScratch,
+) -> (Vec<f32>, Vec<usize>) {
     expand_axes(
         cur,
         c.extent.clone(),
@@ -223,7 +324,7 @@ pub fn inverse(c: &Coefficients, dims: &[usize], step: f64) -> Vec<f32> {
 /// last axis (the one with the lowest total cost), its output is produced a tile at a time
 /// and finished while in cache, so no full-size component plane is ever written.
 pub(crate) fn decode(
-    comps: &[Coefficients],
+    comps: &mut [Coefficients],
     steps: &[f64],
     dims: &[usize],
     fin: &Finisher,
@@ -249,7 +350,7 @@ pub(crate) fn decode(
     for last in 0..d {
         let mut total = 0.0;
         let mut orders = Vec::with_capacity(c);
-        for q in comps {
+        for q in comps.iter() {
             if empty(q) {
                 orders.push(Vec::new());
             } else {
@@ -270,12 +371,16 @@ pub(crate) fn decode(
     // Every pass but the last, per component; an empty component is a box of extent 0.
     let mut inter: Vec<(Vec<f32>, usize)> = Vec::with_capacity(c);
     let mut bases: Vec<HalfBasis> = Vec::with_capacity(c);
-    for ((q, &s), order) in comps.iter().zip(steps).zip(&orders) {
+    for ((q, &s), order) in comps.iter_mut().zip(steps).zip(&orders) {
         if empty(q) {
             inter.push((Vec::new(), 0));
             bases.push(HalfBasis::new(dims[last], 0));
         } else {
-            let (a, shape) = expand_along(q, dims, s, &order[..d - 1], scratch);
+            // The codes are given back once dequantized: a full box's codes are a plane's
+            // size, and the expansion's two arrays need not sit beside them.
+            let cur = dequantize(q, s, scratch);
+            scratch.give_i32(std::mem::take(&mut q.codes));
+            let (a, shape) = expand_dequantized(cur, q, dims, &order[..d - 1], scratch);
             inter.push((a, shape.iter().product()));
             bases.push(HalfBasis::new(dims[last], q.extent[last]));
         }
@@ -1281,6 +1386,54 @@ mod tests {
         let c = Coefficients { extent, codes };
         let gap = relative_gap(&c, &dims, 1e-3);
         assert!(gap <= 1e-5, "gap {gap}");
+    }
+
+    /// The in-place expansion of a single (lean) decode gives the bits of the two-array one:
+    /// every axis order, full and partial boxes, rows wider than a column tile with
+    /// remainders wider and narrower than a vector, and the contiguous axis in groups.
+    #[test]
+    fn the_in_place_expansion_gives_the_two_array_bits() {
+        let cases: [(&[usize], &[usize]); 5] = [
+            (&[7, 9, 13], &[5, 9, 11]),
+            (&[3, 600, 4], &[3, 517, 4]),
+            (&[9, 5, 1030], &[9, 5, 1030]),
+            (&[6, 8, 5, 130], &[6, 3, 5, 129]),
+            (&[40, 3000], &[30, 2900]),
+        ];
+        for (seed, (dims, extent)) in cases.iter().enumerate() {
+            let total: usize = extent.iter().product();
+            let mut rng = crate::math::SplitMix64::new(seed as u64 + 17);
+            let c = Coefficients {
+                extent: extent.to_vec(),
+                codes: (0..total)
+                    .map(|_| {
+                        if rng.next_f64() < 0.4 {
+                            0
+                        } else {
+                            (rng.next_f64() * 2000.0 - 1000.0) as i32
+                        }
+                    })
+                    .collect(),
+            };
+            let d = dims.len();
+            let mut order: Vec<usize> = (0..d).collect();
+            loop {
+                let (two, shape_two) =
+                    expand_along(&c, dims, 0.01, &order, &mut DecodeScratch::default());
+                let (one, shape_one) =
+                    expand_along(&c, dims, 0.01, &order, &mut DecodeScratch::lean());
+                assert_eq!(shape_two, shape_one);
+                let n: usize = shape_two.iter().product();
+                let bits = |v: &[f32]| v[..n].iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert!(
+                    bits(&two) == bits(&one),
+                    "{dims:?} {extent:?} order {order:?}"
+                );
+                if !next_permutation(&mut order) {
+                    break;
+                }
+            }
+        }
     }
 
     #[test]

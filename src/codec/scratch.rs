@@ -6,9 +6,27 @@
 pub struct DecodeScratch {
     f32s: Vec<Vec<f32>>,
     i32s: Vec<Vec<i32>>,
+    /// Arrays given back are freed, not kept: for one decode, whose peak is then its
+    /// largest step rather than every array it ever used (a 64⁴ RGB table: the three
+    /// components' codes and each component's second intermediate, 400 MB, are gone
+    /// before the next component is expanded).
+    lean: bool,
 }
 
 impl DecodeScratch {
+    /// A scratch for a single decode: nothing is kept for a next one.
+    pub fn lean() -> DecodeScratch {
+        DecodeScratch {
+            lean: true,
+            ..DecodeScratch::default()
+        }
+    }
+
+    /// True for a [`DecodeScratch::lean`] one: the decoders then also work in place.
+    pub(crate) fn is_lean(&self) -> bool {
+        self.lean
+    }
+
     /// At least `n` long, contents unspecified (every user writes what it reads).
     pub(crate) fn take_f32(&mut self, n: usize) -> Vec<f32> {
         let mut v = self.f32s.pop().unwrap_or_default();
@@ -17,7 +35,9 @@ impl DecodeScratch {
     }
 
     pub(crate) fn give_f32(&mut self, v: Vec<f32>) {
-        self.f32s.push(v);
+        if !self.lean && v.capacity() > 0 {
+            self.f32s.push(v);
+        }
     }
 
     /// Exactly `n` zeros.
@@ -34,7 +54,9 @@ impl DecodeScratch {
     }
 
     pub(crate) fn give_i32(&mut self, v: Vec<i32>) {
-        self.i32s.push(v);
+        if !self.lean && v.capacity() > 0 {
+            self.i32s.push(v);
+        }
     }
 
     /// `v` at least `n` long; it never shrinks, so a reused array is not written again.

@@ -513,7 +513,7 @@ impl CodecSpec {
     /// tables of one size reuses one buffer and skips the allocation and page faults of a
     /// fresh 17.5 MB vector per MERL-sized table.
     pub fn decode_into(&self, payload: &[u8], layout: &Layout, out: &mut [f32]) -> Result<()> {
-        self.decode_into_with(payload, layout, out, &mut DecodeScratch::default())
+        self.decode_into_with(payload, layout, out, &mut DecodeScratch::lean())
     }
 
     /// As [`CodecSpec::decode_into`], with the decoder's working arrays kept in `scratch`
@@ -595,9 +595,17 @@ impl CodecSpec {
                 ..
             } => {
                 let raw = entropy.decompress_capped(payload, dct_stream_cap(layout)?)?;
-                let comps = dct::deserialize(&raw, &dims, c)?;
+                let mut comps = dct::deserialize(&raw, &dims, c)?;
                 let fin = simd::Finisher::new(transform, layout);
-                idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, out, scratch);
+                idct::decode(
+                    &mut comps,
+                    &stage.step,
+                    &dims,
+                    &fin,
+                    layout.valid,
+                    out,
+                    scratch,
+                );
                 Ok(())
             }
             CodecSpec::DctContext {
@@ -606,9 +614,17 @@ impl CodecSpec {
                 coding,
                 ..
             } => {
-                let comps = coefcode::decode_with(payload, &dims, c, coding.model, scratch)?;
+                let mut comps = coefcode::decode_with(payload, &dims, c, coding.model, scratch)?;
                 let fin = simd::Finisher::new(transform, layout);
-                idct::decode(&comps, &stage.step, &dims, &fin, layout.valid, out, scratch);
+                idct::decode(
+                    &mut comps,
+                    &stage.step,
+                    &dims,
+                    &fin,
+                    layout.valid,
+                    out,
+                    scratch,
+                );
                 for q in comps {
                     scratch.give_i32(q.codes);
                 }

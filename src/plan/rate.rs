@@ -407,7 +407,7 @@ fn encode(
                     payload,
                     &Layout::of(t),
                     &mut decoded,
-                    &mut DecodeScratch::default(),
+                    &mut DecodeScratch::lean(),
                 );
                 t.give_back_samples(decoded);
                 decodes?;
@@ -716,7 +716,7 @@ impl Control<'_> {
         // A scratch of its own, freed after the decode: kept across candidates, its 16 MB
         // (MERL grid) would sit beside the next candidate's quantized codes and the
         // measurement's arrays.
-        let mut scratch = DecodeScratch::default();
+        let mut scratch = DecodeScratch::lean();
         // The decode is the rate control's peak (the table, the coefficients, the decode
         // buffer and the decoder's scratch): what earlier stages freed (the DCT's planes, the
         // transform's samples, the last candidate's codes and measurement) must not stay

@@ -96,7 +96,7 @@ pub fn encode_and_measure(
         &payload,
         &Layout::of(table),
         &mut samples,
-        &mut DecodeScratch::default(),
+        &mut DecodeScratch::lean(),
     );
     let non_finite = samples
         .chunks_exact(c.max(1))
