@@ -11,7 +11,7 @@
 
 use super::budget::Budget;
 use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
-use super::grids::default_grid_spec;
+use super::grids::{axis_curvature, default_grid_spec, reallocation};
 use super::rate::{
     Again, Effort, Encoded, Progress, RateOutcome, encode_within, encode_within_lending,
     prepare_coefficients,
@@ -123,6 +123,17 @@ const MAX_REFINEMENTS: usize = 3;
 /// No refined grid beyond this many cells (4× MERL's: ~70 MB of RGB f32, ~140 MB of DCT
 /// coefficients).
 const MAX_REFINED_CELLS: usize = 6_000_000;
+/// A grid too large to double tries its cells spent otherwise (one axis doubled, another
+/// halved) when [`reallocation`] predicts the interpolation error's square to fall below
+/// this share of what it is.
+const EXCHANGE_PREDICTED_RATIO: f64 = 0.7;
+
+/// The grid a refinement step moves to: measured and held, or (a grid too large to hold
+/// beside another) its grid only, tabulated again.
+enum Candidate {
+    Held(Box<Tabulated>),
+    Again(Grid),
+}
 
 /// A grid with its table and estimator, and the table's own error.
 struct Tabulated {
@@ -189,71 +200,80 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         timings.push((format!("tabulate {}", grid.describe()), tabulate_s));
         Ok((table, tabulate_s))
     };
-    let measure =
-        |table: Table, tabulate_s: f64, timings: &mut Vec<(String, f64)>| -> Result<Tabulated> {
-            let spec = table.grid().describe();
-            let t = Instant::now();
-            progress(&format!("interpolation stencils on {spec}"));
-            let mut table = table;
-            let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
-            let mut floor = est.measure(table.data());
-            // What is interpolated between the samples is measured too, when the planner owns
-            // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
-            // horizon is smooth only in the latter). Tried when the grid's own error is a real
-            // share of the budget; the other stencils cost a fraction of a tabulation.
-            let mut spec = spec;
-            if refine && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
-                // The table's grid as it now interpolates, measured; kept when its own error uses
-                // less of the budget than the best so far.
-                let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
-                    let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
-                    let f = e.measure(table.data());
-                    let better =
-                        floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
-                    if better {
-                        (*est, *floor) = (e, f);
-                    }
-                    Ok::<bool, Error>(better)
-                };
-                let table = &mut table;
-                let plain = table.grid().weight();
-                table.set_interp_weight(match plain {
-                    InterpWeight::None => InterpWeight::Cosine,
-                    InterpWeight::Cosine => InterpWeight::None,
-                });
-                if !closer(table, &mut est, &mut floor)? {
-                    table.set_interp_weight(plain);
+    let measure = |table: Table,
+                   tabulate_s: f64,
+                   try_variants: bool,
+                   timings: &mut Vec<(String, f64)>|
+     -> Result<Tabulated> {
+        let spec = table.grid().describe();
+        let t = Instant::now();
+        progress(&format!("interpolation stencils on {spec}"));
+        let mut table = table;
+        let mut est = ErrorEstimator::new(&table, &reference, Some(&check), for_samples)?;
+        let mut floor = est.measure(table.data());
+        // What is interpolated between the samples is measured too, when the planner owns
+        // the grid: f itself, or f·cos θi·cos θo (a source growing like 1/cos θ at the
+        // horizon is smooth only in the latter). Tried when the grid's own error is a real
+        // share of the budget; the other stencils cost a fraction of a tabulation.
+        let mut spec = spec;
+        if refine && try_variants && floor_share(&settings.budget, &floor) > WEIGHT_TRY_SHARE {
+            // The table's grid as it now interpolates, measured; kept when its own error uses
+            // less of the budget than the best so far.
+            let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
+                let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
+                let f = e.measure(table.data());
+                let better =
+                    floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
+                if better {
+                    (*est, *floor) = (e, f);
                 }
-                // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
-                // flanks fall by decades between samples, which linear interpolation
-                // overestimates and a geometric mean follows.
-                let mut kept = table.grid().space();
-                for log in log_spaces_of(table, &est) {
-                    table.set_interp_space(log);
-                    if closer(table, &mut est, &mut floor)? {
-                        kept = log;
-                    }
-                }
-                table.set_interp_space(kept);
-                spec = table.grid().describe();
+                Ok::<bool, Error>(better)
+            };
+            let table = &mut table;
+            let plain = table.grid().weight();
+            table.set_interp_weight(match plain {
+                InterpWeight::None => InterpWeight::Cosine,
+                InterpWeight::Cosine => InterpWeight::None,
+            });
+            if !closer(table, &mut est, &mut floor)? {
+                table.set_interp_weight(plain);
             }
-            timings.push((
-                format!("stencils and grid error {spec}"),
-                t.elapsed().as_secs_f64(),
-            ));
-            Ok(Tabulated {
-                spec,
-                table,
-                est,
-                floor,
-                tabulate_s,
-            })
-        };
+            // Then the log space ([`InterpSpace`]) for the weight kept: a narrow peak's
+            // flanks fall by decades between samples, which linear interpolation
+            // overestimates and a geometric mean follows.
+            let mut kept = table.grid().space();
+            for log in log_spaces_of(table, &est) {
+                table.set_interp_space(log);
+                if closer(table, &mut est, &mut floor)? {
+                    kept = log;
+                }
+            }
+            table.set_interp_space(kept);
+            spec = table.grid().describe();
+        }
+        timings.push((
+            format!("stencils and grid error {spec}"),
+            t.elapsed().as_secs_f64(),
+        ));
+        Ok(Tabulated {
+            spec,
+            table,
+            est,
+            floor,
+            tabulate_s,
+        })
+    };
     let mut attempts: Vec<GridAttempt> = Vec::new();
     let mut best: Option<(usize, Table, String, Encoded, f64, f64)> = None;
     let prepare = |source: &dyn Brdf, grid: &Grid, timings: &mut Vec<(String, f64)>| {
         let (table, tabulate_s) = tabulate_on(source, grid, timings)?;
-        measure(table, tabulate_s, timings)
+        measure(table, tabulate_s, true, timings)
+    };
+    // A candidate measured before: its grid exactly as measured (weight and space included),
+    // tabulated and measured again.
+    let prepare_again = |source: &dyn Brdf, grid: &Grid, timings: &mut Vec<(String, f64)>| {
+        let (table, tabulate_s) = tabulate_on(source, grid, timings)?;
+        measure(table, tabulate_s, false, timings)
     };
     let (table, tabulate_s) = tabulate_on(source, &start, &mut timings)?;
     // On a fixed grid, a source that can be opened again is not held beside the
@@ -264,10 +284,33 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         None => prepare_coefficients(&table, reference.epsilon(), settings.effort, progress),
         Some(_) => None,
     };
-    let mut current = measure(table, tabulate_s, &mut timings)?;
+    let mut current = measure(table, tabulate_s, true, &mut timings)?;
     let mut refinements = 0;
     let mut tight_tried = false;
     loop {
+        // A grid no doubling may follow (the 64⁴ default of an anisotropic source) can still
+        // spend its cells where the source needs them: which axis gains and which can give
+        // is read from the tabulated values before the encoder replaces them by its decode.
+        let current_cells = current.table.grid().cells();
+        let misses = !crate::plan::rate::accepts(&settings.budget, &current.floor);
+        let exchange = if refine
+            && misses
+            && best.is_none()
+            && current_cells.saturating_mul(2) > MAX_REFINED_CELLS
+        {
+            let t = Instant::now();
+            progress("axis curvature");
+            let scale = match current.table.grid().space() {
+                InterpSpace::Log { scale } => scale,
+                InterpSpace::Linear => reference.epsilon(),
+            };
+            let shares = axis_curvature(&current.table, scale);
+            timings.push(("axis curvature".to_string(), t.elapsed().as_secs_f64()));
+            reallocation(&current.table.grid().desc(), &shares)
+                .filter(|&(_, _, ratio)| ratio < EXCHANGE_PREDICTED_RATIO)
+        } else {
+            None
+        };
         let t = Instant::now();
         // The tabulation again when the lossless chain is chosen: the rate control decodes
         // into the table's own memory meanwhile.
@@ -372,7 +415,23 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         // Which axis to refine is measured, not assumed: every axis doubled in turn, and the
         // grid whose own error uses the least of the budget is kept (a narrow peak wants θh,
         // the grazing 1/(cos θi cos θo) growth wants θd, anisotropy wants φ).
-        let mut next: Option<(f64, Tabulated)> = None;
+        let mut next: Option<(f64, Candidate)> = None;
+        // Candidates of a grid too large to double are the size of the grid itself (a 64⁴ RGB
+        // table and its stencils: 240 MB): only the best one's grid is kept while the next
+        // is measured, and it is tabulated again once chosen.
+        let held_back = current_cells.saturating_mul(2) > MAX_REFINED_CELLS;
+        let consider = |sh: f64, cand: Tabulated, next: &mut Option<(f64, Candidate)>| {
+            if next.as_ref().is_none_or(|(b, _)| sh < *b) {
+                *next = Some((
+                    sh,
+                    if held_back {
+                        Candidate::Again(cand.table.grid().clone())
+                    } else {
+                        Candidate::Held(Box::new(cand))
+                    },
+                ));
+            }
+        };
         for a in 0..base.axes.len() {
             let mut d = base.clone();
             d.axes[a].n *= 2;
@@ -382,9 +441,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             }
             let cand = with_source(held.as_ref(), reopen, |s| prepare(s, &g, &mut timings))?;
             let sh = floor_share(&settings.budget, &cand.floor);
-            if next.as_ref().is_none_or(|(b, _)| sh < *b) {
-                next = Some((sh, cand));
-            }
+            consider(sh, cand, &mut next);
         }
         // The same cells with the θ axes that reach the horizon warped toward it (θi and θo
         // together, or θd): a source that changes fastest in the last degrees before the
@@ -405,12 +462,32 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             if changed && let Ok(g) = Grid::from_desc(&d) {
                 let cand = with_source(held.as_ref(), reopen, |s| prepare(s, &g, &mut timings))?;
                 let sh = floor_share(&settings.budget, &cand.floor);
-                if next.as_ref().is_none_or(|(b, _)| sh < *b) {
-                    next = Some((sh, cand));
+                consider(sh, cand, &mut next);
+            }
+        }
+        // The same cells exchanged between two axes, as the curvature predicts, while no grid
+        // has met the budget (an exchange is for reach: once a file is written, the next
+        // 64⁴ encode costs seconds for a few bytes); kept only when its own error, measured,
+        // uses less of the budget than this grid's.
+        if let Some((a, b, _)) = exchange.filter(|_| best.is_none()) {
+            let mut d = base.clone();
+            d.axes[a].n *= 2;
+            d.axes[b].n /= 2;
+            if let Ok(g) = Grid::from_desc(&d) {
+                let cand = with_source(held.as_ref(), reopen, |s| prepare(s, &g, &mut timings))?;
+                let sh = floor_share(&settings.budget, &cand.floor);
+                if sh < share {
+                    consider(sh, cand, &mut next);
                 }
             }
         }
         let Some((_, cand)) = next else { break };
+        let cand = match cand {
+            Candidate::Held(t) => *t,
+            Candidate::Again(g) => with_source(held.as_ref(), reopen, |s| {
+                prepare_again(s, &g, &mut timings)
+            })?,
+        };
         current = cand;
         refinements += 1;
     }
@@ -426,7 +503,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             &encoded.payload,
             &crate::codec::Layout::of(&table),
             &mut samples,
-            &mut crate::codec::DecodeScratch::default(),
+            &mut crate::codec::DecodeScratch::lean(),
         );
         table.give_back_samples(samples);
         decoded?;
