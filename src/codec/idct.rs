@@ -158,7 +158,11 @@ pub(crate) fn expand_axes(
     scratch: &mut DecodeScratch,
     mut pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
 ) -> (Vec<f32>, Vec<usize>) {
-    if scratch.is_lean() {
+    // In place only where the second array is worth its cost: copying each block in and out
+    // of a tile makes a pass slower (64⁴: ~0.2 s a decode), and a MERL-sized plane's second
+    // array is 17 MB.
+    let cells: usize = dims.iter().product();
+    if scratch.is_lean() && cells > IN_PLACE_CELLS {
         return expand_axes_in_place(cur, cur_dims, dims, order, scratch, pass);
     }
     let mut next = scratch.take_f32(0);
@@ -176,6 +180,10 @@ pub(crate) fn expand_axes(
     scratch.give_f32(next);
     (cur, cur_dims)
 }
+
+/// Planes above this many cells (2²³, a 32 MB f32 plane: the 64⁴ grids, not MERL's or its
+/// refinements up to 180³) are expanded in place by a single decode.
+const IN_PLACE_CELLS: usize = 1 << 23;
 
 /// [`expand_axes`] in one array, for a single decode: each pass widens the data where it
 /// lies, blocks of the outer axes last first (a block's output never reaches the input of a
@@ -295,15 +303,23 @@ fn expand_dequantized(
         dims,
         order,
         scratch,
-        |a, src, dst, outer, inner| {
-            let basis = HalfBasis::new(dims[a], c.extent[a]);
-            if inner == 1 {
-                expand_contiguous(src, dst, outer, &basis);
-            } else {
-                expand_strided(src, dst, outer, inner, &basis);
-            }
-        },
+        dct_pass(c, dims),
     )
+}
+
+/// The inverse DCT of one axis of the box `c` as an [`expand_axes`] pass.
+fn dct_pass<'a>(
+    c: &'a Coefficients,
+    dims: &'a [usize],
+) -> impl FnMut(usize, &[f32], &mut [f32], usize, usize) + 'a {
+    |a, src, dst, outer, inner| {
+        let basis = HalfBasis::new(dims[a], c.extent[a]);
+        if inner == 1 {
+            expand_contiguous(src, dst, outer, &basis);
+        } else {
+            expand_strided(src, dst, outer, inner, &basis);
+        }
+    }
 }
 
 /// Reconstructs one component plane (every cell) from its quantized box, in f32.
@@ -1420,8 +1436,17 @@ mod tests {
             loop {
                 let (two, shape_two) =
                     expand_along(&c, dims, 0.01, &order, &mut DecodeScratch::default());
-                let (one, shape_one) =
-                    expand_along(&c, dims, 0.01, &order, &mut DecodeScratch::lean());
+                // In place whatever the plane's size (a decode takes it above IN_PLACE_CELLS).
+                let lean = &mut DecodeScratch::lean();
+                let cur = dequantize(&c, 0.01, lean);
+                let (one, shape_one) = expand_axes_in_place(
+                    cur,
+                    c.extent.clone(),
+                    dims,
+                    &order,
+                    lean,
+                    dct_pass(&c, dims),
+                );
                 assert_eq!(shape_two, shape_one);
                 let n: usize = shape_two.iter().product();
                 let bits = |v: &[f32]| v[..n].iter().map(|x| x.to_bits()).collect::<Vec<_>>();

@@ -598,6 +598,12 @@ impl Control<'_> {
                     None => f * 0.7,
                 };
             }
+            if s < s_min {
+                // Below the finest step (2^29 levels for the largest coefficient), where the
+                // f32 decode's own rounding is the error: no smaller step does better, and each
+                // try of a nearly full box costs a plane of codes and seconds.
+                break;
+            }
             if let Some(o) = ok_step {
                 if s <= o * 1.02 {
                     break;
