@@ -73,9 +73,19 @@ impl Effort {
         }
     }
 
-    /// The codec variants tried, as (ε scale relative to the metric's ε, dead zone, refined
-    /// fill passes).
-    fn variants(self) -> Vec<Variant> {
+    /// The codec variants tried on a table of `cells` cells, as (ε scale relative to the
+    /// metric's ε, dead zone, refined fill passes). The refined fill builds, decodes and
+    /// fills again f64 planes of every cell (134 MB each on a 64⁴ grid; with it, `max` took
+    /// 683 MB and 55 s for a 67 MB table): above the f32 planes' threshold it is left out.
+    fn variants(self, cells: usize) -> Vec<Variant> {
+        let mut all = self.all_variants();
+        if cells > F32_PLANE_CELLS {
+            all.retain(|v| v.refine == 0);
+        }
+        all
+    }
+
+    fn all_variants(self) -> Vec<Variant> {
         let v = |eps_scale, deadzone, refine| Variant {
             eps_scale,
             deadzone,
@@ -224,7 +234,7 @@ pub fn prepare_coefficients(
     effort: Effort,
     progress: Progress,
 ) -> Option<Prepared> {
-    let variants = effort.variants();
+    let variants = effort.variants(table.grid().cells());
     let scale = variants[0].eps_scale;
     if variants
         .iter()
@@ -322,7 +332,7 @@ fn encode(
     // DCT, whose planes are the larger transient), or is the lent samples.
     let mut decoded: Vec<f32> = Vec::new();
     let has_negative = has_negative(access.table());
-    let variants = effort.variants();
+    let variants = effort.variants(access.table().grid().cells());
     let mut by_scale: Vec<f64> = Vec::new();
     for v in &variants {
         if !by_scale.contains(&v.eps_scale) {
