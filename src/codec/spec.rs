@@ -596,16 +596,7 @@ impl CodecSpec {
             } => {
                 let raw = entropy.decompress_capped(payload, dct_stream_cap(layout)?)?;
                 let mut comps = dct::deserialize(&raw, &dims, c)?;
-                let fin = simd::Finisher::new(transform, layout);
-                idct::decode(
-                    &mut comps,
-                    &stage.step,
-                    &dims,
-                    &fin,
-                    layout.valid,
-                    out,
-                    scratch,
-                );
+                inverse_dct(&mut comps, transform, &stage.step, layout, out, scratch);
                 Ok(())
             }
             CodecSpec::DctContext {
@@ -615,16 +606,7 @@ impl CodecSpec {
                 ..
             } => {
                 let mut comps = coefcode::decode_with(payload, &dims, c, coding.model, scratch)?;
-                let fin = simd::Finisher::new(transform, layout);
-                idct::decode(
-                    &mut comps,
-                    &stage.step,
-                    &dims,
-                    &fin,
-                    layout.valid,
-                    out,
-                    scratch,
-                );
+                inverse_dct(&mut comps, transform, &stage.step, layout, out, scratch);
                 for q in comps {
                     scratch.give_i32(q.codes);
                 }
@@ -643,6 +625,21 @@ impl CodecSpec {
             }
         }
     }
+}
+
+/// The decoded coefficient boxes of a DCT chain through the inverse DCT and the finishing
+/// step (colour, curve, 1/w, interleave) into `out`.
+fn inverse_dct(
+    comps: &mut [dct::Coefficients],
+    transform: &Transform,
+    steps: &[f64],
+    layout: &Layout,
+    out: &mut [f32],
+    scratch: &mut DecodeScratch,
+) {
+    let fin = simd::Finisher::new(transform, layout);
+    let dims = layout.dims();
+    idct::decode(comps, steps, &dims, &fin, layout.valid, out, scratch);
 }
 
 impl CodecSpec {
