@@ -30,8 +30,9 @@ pub fn default_grid_spec(src: &dyn Brdf) -> &'static str {
 /// sixteenth of its share); one with half, sixteen times the share. In y the shares are
 /// relative errors for values above `scale` (the metrics' ε or the grid's log scale), as the
 /// relative metrics and `log_rmse` of a bright value see them; weighting by each cell's
-/// solid angle makes them the uniform pairs' error. Only cells whose two neighbours along the
-/// axis are valid count; every fourth line along each axis is read (an estimate, and a
+/// solid angle makes them the uniform pairs' error. Each share is over the valid cells of the
+/// lines read (a cell whose two neighbours along the axis are not both valid adds 0); every
+/// fourth line along each axis is read (an estimate, and a
 /// quarter of the cost: a 64⁴ grid in a fraction of a second).
 pub fn axis_curvature(table: &Table, scale: f64) -> Vec<f64> {
     let grid = table.grid();
@@ -54,19 +55,9 @@ pub fn axis_curvature(table: &Table, scale: f64) -> Vec<f64> {
     for k in (0..d.saturating_sub(1)).rev() {
         strides[k] = strides[k + 1] * dims[k + 1];
     }
-    // The measure of a cell from its index (the product of the per-axis factors).
-    let measure = |mut cell: usize| -> f64 {
-        let mut m = 1.0;
-        for k in (0..d).rev() {
-            m *= factors[k][cell % dims[k]];
-            cell /= dims[k];
-        }
-        m
-    };
     const EVERY: usize = 4;
     const CHUNK: usize = 256;
     let mut shares = Vec::with_capacity(d);
-    let mut total_measure = 0.0;
     for k in 0..d {
         let n = dims[k];
         let inner = strides[k];
@@ -80,6 +71,11 @@ pub fn axis_curvature(table: &Table, scale: f64) -> Vec<f64> {
                 let (mut sum, mut weight) = (0.0, 0.0);
                 for &l in ids {
                     let base = (l / inner) * n * inner + l % inner;
+                    // The measure of the line's other axes; cell i's is this × factors[k][i].
+                    let line_measure: f64 = (0..d)
+                        .filter(|&j| j != k)
+                        .map(|j| factors[j][(base / strides[j]) % dims[j]])
+                        .product();
                     for (i, yi) in ys.iter_mut().enumerate() {
                         *yi = y(base + i * inner);
                     }
@@ -88,7 +84,7 @@ pub fn axis_curvature(table: &Table, scale: f64) -> Vec<f64> {
                         if !valid[cell] {
                             continue;
                         }
-                        let m = measure(cell);
+                        let m = line_measure * factors[k][i];
                         weight += m;
                         let (lo, hi) = if periodic {
                             ((i + n - 1) % n, (i + 1) % n)
@@ -110,15 +106,8 @@ pub fn axis_curvature(table: &Table, scale: f64) -> Vec<f64> {
             })
             .collect();
         let sum: f64 = parts.iter().map(|p| p.0).sum();
-        if k == 0 {
-            total_measure = parts.iter().map(|p| p.1).sum();
-        }
-        shares.push(sum);
-    }
-    if total_measure > 0.0 {
-        for s in &mut shares {
-            *s /= total_measure;
-        }
+        let weight: f64 = parts.iter().map(|p| p.1).sum();
+        shares.push(if weight > 0.0 { sum / weight } else { 0.0 });
     }
     shares
 }

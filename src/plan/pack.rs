@@ -13,7 +13,7 @@ use super::budget::Budget;
 use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
 use super::grids::{axis_curvature, default_grid_spec, reallocation};
 use super::rate::{
-    Again, Effort, Encoded, Progress, RateOutcome, encode_within, encode_within_lending,
+    Again, Effort, Encoded, Progress, RateOutcome, accepts, encode_within, encode_within_lending,
     prepare_coefficients,
 };
 use crate::brdf::Brdf;
@@ -291,12 +291,15 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         // A grid no doubling may follow (the 64⁴ default of an anisotropic source) can still
         // spend its cells where the source needs them: which axis gains and which can give
         // is read from the tabulated values before the encoder replaces them by its decode.
-        let current_cells = current.table.grid().cells();
-        let misses = !crate::plan::rate::accepts(&settings.budget, &current.floor);
+        // Only while no file has met the budget (an exchange is for reach: once a file is
+        // written, another 64⁴ encode costs seconds for a few bytes), and only for a grid that
+        // misses it (whose encode then writes nothing either).
+        let too_large_to_double =
+            current.table.grid().cells().saturating_mul(2) > MAX_REFINED_CELLS;
         let exchange = if refine
-            && misses
+            && too_large_to_double
             && best.is_none()
-            && current_cells.saturating_mul(2) > MAX_REFINED_CELLS
+            && !accepts(&settings.budget, &current.floor)
         {
             let t = Instant::now();
             progress("axis curvature");
@@ -419,12 +422,11 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         // Candidates of a grid too large to double are the size of the grid itself (a 64⁴ RGB
         // table and its stencils: 240 MB): only the best one's grid is kept while the next
         // is measured, and it is tabulated again once chosen.
-        let held_back = current_cells.saturating_mul(2) > MAX_REFINED_CELLS;
         let consider = |sh: f64, cand: Tabulated, next: &mut Option<(f64, Candidate)>| {
             if next.as_ref().is_none_or(|(b, _)| sh < *b) {
                 *next = Some((
                     sh,
-                    if held_back {
+                    if too_large_to_double {
                         Candidate::Again(cand.table.grid().clone())
                     } else {
                         Candidate::Held(Box::new(cand))
@@ -465,11 +467,9 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 consider(sh, cand, &mut next);
             }
         }
-        // The same cells exchanged between two axes, as the curvature predicts, while no grid
-        // has met the budget (an exchange is for reach: once a file is written, the next
-        // 64⁴ encode costs seconds for a few bytes); kept only when its own error, measured,
-        // uses less of the budget than this grid's.
-        if let Some((a, b, _)) = exchange.filter(|_| best.is_none()) {
+        // The same cells exchanged between two axes, as the curvature predicts; kept only when
+        // its own error, measured, uses less of the budget than this grid's.
+        if let Some((a, b, _)) = exchange {
             let mut d = base.clone();
             d.axes[a].n *= 2;
             d.axes[b].n /= 2;
