@@ -22,7 +22,7 @@
 
 use super::DecodeScratch;
 use super::dct::{Coefficients, dct_entry};
-use super::simd::{Finisher, dispatch, finish};
+use super::simd::{Finisher, dispatch, finish, finish_from};
 
 /// One axis of the inverse: the transposed DCT basis truncated to the box's frequencies,
 /// for the first half of the outputs only. `rows[k·hp + n]` = C[k][n] (n < h = ⌈N/2⌉, zero
@@ -197,20 +197,38 @@ fn expand_axes_in_place(
     dims: &[usize],
     order: &[usize],
     scratch: &mut DecodeScratch,
-    mut pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
+    pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
 ) -> (Vec<f32>, Vec<usize>) {
+    DecodeScratch::grow(&mut cur, largest_shape(&cur_dims, dims, order));
+    expand_in_slice(&mut cur, &mut cur_dims, dims, order, scratch, pass);
+    (cur, cur_dims)
+}
+
+/// The largest array an expansion of `cur_dims` along `order` holds.
+fn largest_shape(cur_dims: &[usize], dims: &[usize], order: &[usize]) -> usize {
+    order
+        .iter()
+        .scan(cur_dims.to_vec(), |shape, &a| {
+            shape[a] = dims[a];
+            Some(shape.iter().product::<usize>())
+        })
+        .fold(cur_dims.iter().product::<usize>(), usize::max)
+}
+
+/// The passes of [`expand_axes_in_place`] on `cur`, at least [`largest_shape`] long;
+/// `cur_dims` becomes the final shape.
+fn expand_in_slice(
+    cur: &mut [f32],
+    cur_dims: &mut [usize],
+    dims: &[usize],
+    order: &[usize],
+    scratch: &mut DecodeScratch,
+    mut pass: impl FnMut(usize, &[f32], &mut [f32], usize, usize),
+) {
     // Columns per tile: a multiple of the kernels' vector widths, a few KB of each row.
     const TILE: usize = 512;
     // Values of the contiguous kernel's output per group of lines.
     const GROUP: usize = 1 << 16;
-    let largest = order
-        .iter()
-        .scan(cur_dims.clone(), |shape, &a| {
-            shape[a] = dims[a];
-            Some(shape.iter().product::<usize>())
-        })
-        .fold(cur_dims.iter().product::<usize>(), usize::max);
-    DecodeScratch::grow(&mut cur, largest);
     let mut tile_in = scratch.take_f32(0);
     let mut tile_out = scratch.take_f32(0);
     for &a in order {
@@ -262,7 +280,6 @@ fn expand_axes_in_place(
     }
     scratch.give_f32(tile_in);
     scratch.give_f32(tile_out);
-    (cur, cur_dims)
 }
 
 /// The dequantized box expanded along the axes of `order` (in that order): the array (from
@@ -361,25 +378,18 @@ pub(crate) fn decode(
         finish(fin, &views, valid, out);
         return;
     }
-    // The shared last axis: the lowest total cost over the components.
-    let mut best: Option<(f64, usize, Vec<Vec<usize>>)> = None;
-    for last in 0..d {
-        let mut total = 0.0;
-        let mut orders = Vec::with_capacity(c);
-        for q in comps.iter() {
-            if empty(q) {
-                orders.push(Vec::new());
-            } else {
-                let (cost, order) = cheapest_order(&q.extent, dims, Some(last));
-                total += cost;
-                orders.push(order);
-            }
-        }
-        if best.as_ref().is_none_or(|(t, _, _)| total < *t) {
-            best = Some((total, last, orders));
-        }
+    let (last, orders) = shared_orders(comps, dims);
+    let cells: usize = dims.iter().product();
+    // A single decode of a large table finishes in place when that holds less: always for
+    // one component (its plane is `out`), for three when their intermediates (every axis
+    // but the last expanded) would outgrow the two planes of their own it needs.
+    if scratch.is_lean()
+        && cells * c > IN_PLACE_CELLS
+        && (c == 1 || intermediates(comps, dims, &orders) > 2 * cells)
+    {
+        decode_in_place(comps, steps, dims, &orders, fin, valid, out, scratch);
+        return;
     }
-    let (_, last, orders) = best.expect("at least one axis");
     if d == 3 && last == 0 {
         decode_tiled(comps, steps, dims, &orders, fin, valid, out, scratch);
         return;
@@ -412,6 +422,122 @@ pub(crate) fn decode(
     for (p, _) in inter {
         scratch.give_f32(p);
     }
+}
+
+/// The last axis [`decode`] shares between the components (the lowest total cost over
+/// them) and each component's axis order ending in it (empty for an empty component).
+fn shared_orders(comps: &[Coefficients], dims: &[usize]) -> (usize, Vec<Vec<usize>>) {
+    let d = dims.len();
+    let empty = |q: &Coefficients| q.codes.is_empty() || q.extent.len() != d;
+    // The shared last axis: the lowest total cost over the components.
+    let mut best: Option<(f64, usize, Vec<Vec<usize>>)> = None;
+    for last in 0..d {
+        let mut total = 0.0;
+        let mut orders = Vec::with_capacity(comps.len());
+        for q in comps.iter() {
+            if empty(q) {
+                orders.push(Vec::new());
+            } else {
+                let (cost, order) = cheapest_order(&q.extent, dims, Some(last));
+                total += cost;
+                orders.push(order);
+            }
+        }
+        if best.as_ref().is_none_or(|(t, _, _)| total < *t) {
+            best = Some((total, last, orders));
+        }
+    }
+    let (_, last, orders) = best.expect("at least one axis");
+    (last, orders)
+}
+
+/// Values of the intermediates [`decode`] holds for its fused last pass: each component
+/// expanded along every axis of its order but the last.
+fn intermediates(comps: &[Coefficients], dims: &[usize], orders: &[Vec<usize>]) -> usize {
+    comps
+        .iter()
+        .zip(orders)
+        .filter(|(q, o)| !q.codes.is_empty() && o.len() == dims.len())
+        .map(|(q, o)| largest_shape(&q.extent, dims, &o[..o.len() - 1]))
+        .sum()
+}
+
+/// [`decode`] of a large table by a single decode ([`DecodeScratch::lean`]): each component
+/// dequantized and expanded along every axis in the array it is finished from (component 0
+/// in `out` itself, the others in arrays of their own), then every cell finished in place, a
+/// chunk at a time from the last cell down (cell i's C values go to C·i.., never onto the
+/// first component's cells below i, which are not read yet). A whole pass along the last
+/// axis has the arithmetic of [`decode`]'s fused last pass (tested): the same bits, without
+/// every component's intermediate beside `out`.
+#[allow(clippy::too_many_arguments)] // `decode`'s arguments and its axis orders.
+fn decode_in_place(
+    comps: &mut [Coefficients],
+    steps: &[f64],
+    dims: &[usize],
+    orders: &[Vec<usize>],
+    fin: &Finisher,
+    valid: &[bool],
+    out: &mut [f32],
+    scratch: &mut DecodeScratch,
+) {
+    // Cells finished per chunk: the first component's copy is this many floats.
+    const CHUNK: usize = 1 << 14;
+    let c = comps.len();
+    let cells: usize = dims.iter().product();
+    let mut others: Vec<Vec<f32>> = Vec::with_capacity(c.saturating_sub(1));
+    for (k, ((q, &s), order)) in comps.iter_mut().zip(steps).zip(orders).enumerate() {
+        if k == 0 {
+            expand_whole(q, s, dims, order, &mut out[..cells], scratch);
+        } else {
+            let mut plane = scratch.take_f32(cells);
+            expand_whole(q, s, dims, order, &mut plane[..cells], scratch);
+            others.push(plane);
+        }
+    }
+    let mut first = scratch.take_f32(CHUNK);
+    let mut end = cells;
+    while end > 0 {
+        let start = end.saturating_sub(CHUNK);
+        first[..end - start].copy_from_slice(&out[start..end]);
+        let planes: Vec<&[f32]> = std::iter::once(&first[..end - start])
+            .chain(others.iter().map(|p| &p[start..end]))
+            .collect();
+        finish_from(
+            fin,
+            &planes,
+            start,
+            &valid[start..end],
+            &mut out[start * c..end * c],
+        );
+        end = start;
+    }
+    scratch.give_f32(first);
+    for p in others {
+        scratch.give_f32(p);
+    }
+}
+
+/// One component of [`decode_in_place`]: its box dequantized into `plane` (every cell) and
+/// expanded there along `order` (every axis); its codes given back once dequantized. An
+/// empty component is 0 everywhere, as in [`decode`].
+fn expand_whole(
+    q: &mut Coefficients,
+    step: f64,
+    dims: &[usize],
+    order: &[usize],
+    plane: &mut [f32],
+    scratch: &mut DecodeScratch,
+) {
+    if q.codes.is_empty() || q.extent.len() != dims.len() {
+        plane.fill(0.0);
+        return;
+    }
+    for (d, &v) in plane.iter_mut().zip(&q.codes) {
+        *d = (v as f64 * step) as f32;
+    }
+    scratch.give_i32(std::mem::take(&mut q.codes));
+    let mut shape = q.extent.clone();
+    expand_in_slice(plane, &mut shape, dims, order, scratch, dct_pass(q, dims));
 }
 
 dispatch!(fn expand_contiguous / expand_contiguous_avx2 => contiguous_impl(src: &[f32], dst: &mut [f32], outer: usize, b: &HalfBasis));
@@ -1457,6 +1583,129 @@ mod tests {
                 if !next_permutation(&mut order) {
                     break;
                 }
+            }
+        }
+    }
+
+    /// A large single decode ([`decode_in_place`]: every component expanded whole, then
+    /// finished in place from the last cell down) gives the bits of the fused decode, for 1
+    /// and 3 components, 3 and 4 axes, every shared last axis, an empty component, a
+    /// weighted finisher, and more cells than a chunk.
+    #[test]
+    fn the_in_place_decode_gives_the_fused_bits() {
+        let cases: [(&[usize], [&[usize]; 3]); 3] = [
+            (&[7, 9, 13], [&[5, 9, 11], &[3, 2, 13], &[0, 0, 0]]),
+            (
+                &[6, 8, 5, 130],
+                [&[6, 3, 5, 129], &[2, 8, 1, 40], &[1, 1, 1, 1]],
+            ),
+            (&[33, 40, 30], [&[20, 31, 9], &[33, 40, 30], &[4, 7, 2]]),
+        ];
+        for (seed, (dims, extents)) in cases.iter().enumerate() {
+            let mut rng = crate::math::SplitMix64::new(seed as u64 + 29);
+            let comps: Vec<Coefficients> = extents
+                .iter()
+                .map(|e| {
+                    let total: usize = e.iter().product();
+                    Coefficients {
+                        extent: if total == 0 { Vec::new() } else { e.to_vec() },
+                        codes: (0..total)
+                            .map(|_| {
+                                if rng.next_f64() < 0.4 {
+                                    0
+                                } else {
+                                    (rng.next_f64() * 2000.0 - 1000.0) as i32
+                                }
+                            })
+                            .collect(),
+                    }
+                })
+                .collect();
+            let cells: usize = dims.iter().product();
+            let valid: Vec<bool> = (0..cells).map(|_| rng.next_f64() > 0.2).collect();
+            let steps = [0.01, 0.003, 0.02];
+            for c in [1usize, 3] {
+                let fin = Finisher::example(c);
+                let mut fused = vec![f32::NAN; cells * c];
+                decode(
+                    &mut comps[..c].to_vec(),
+                    &steps[..c],
+                    dims,
+                    &fin,
+                    &valid,
+                    &mut fused,
+                    &mut DecodeScratch::default(),
+                );
+                for last in 0..dims.len() {
+                    let orders: Vec<Vec<usize>> = comps[..c]
+                        .iter()
+                        .map(|q| {
+                            if q.codes.is_empty() {
+                                Vec::new()
+                            } else {
+                                cheapest_order(&q.extent, dims, Some(last)).1
+                            }
+                        })
+                        .collect();
+                    let mut reference = vec![f32::NAN; cells * c];
+                    // The fused decode with this last axis: every pass but the last, then
+                    // the last fused with the finisher.
+                    let mut planes = Vec::new();
+                    let mut bases = Vec::new();
+                    for ((q, &s), o) in comps[..c].iter().zip(&steps).zip(&orders) {
+                        if q.codes.is_empty() {
+                            planes.push(Vec::new());
+                            bases.push(HalfBasis::new(dims[last], 0));
+                        } else {
+                            let d = dims.len();
+                            let scratch = &mut DecodeScratch::default();
+                            let (a, shape) = expand_along(q, dims, s, &o[..d - 1], scratch);
+                            let n: usize = shape.iter().product();
+                            planes.push(a[..n].to_vec());
+                            bases.push(HalfBasis::new(dims[last], q.extent[last]));
+                        }
+                    }
+                    let views: Vec<&[f32]> = planes.iter().map(|p| p.as_slice()).collect();
+                    let outer: usize = dims[..last].iter().product();
+                    let inner: usize = dims[last + 1..].iter().product();
+                    if c == 1 {
+                        final_1(&views, &bases, outer, inner, &fin, &valid, &mut reference);
+                    } else {
+                        final_3(&views, &bases, outer, inner, &fin, &valid, &mut reference);
+                    }
+                    let mut in_place = vec![f32::NAN; cells * c];
+                    decode_in_place(
+                        &mut comps[..c].to_vec(),
+                        &steps[..c],
+                        dims,
+                        &orders,
+                        &fin,
+                        &valid,
+                        &mut in_place,
+                        &mut DecodeScratch::lean(),
+                    );
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert!(
+                        bits(&in_place) == bits(&reference),
+                        "{dims:?}, {c} components, last axis {last}"
+                    );
+                    assert!(in_place.iter().any(|&v| v > 0.0));
+                }
+                // And the decode's own choice of the last axis, through `decode`.
+                let mut lean = vec![f32::NAN; cells * c];
+                let (_, orders) = shared_orders(&comps[..c], dims);
+                decode_in_place(
+                    &mut comps[..c].to_vec(),
+                    &steps[..c],
+                    dims,
+                    &orders,
+                    &fin,
+                    &valid,
+                    &mut lean,
+                    &mut DecodeScratch::lean(),
+                );
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert!(bits(&lean) == bits(&fused), "{dims:?}, {c} components");
             }
         }
     }
