@@ -137,7 +137,8 @@ fn tabulate_fast(kernel: &HalfdiffMicrofacet, data: &mut [f32], valid: &mut [boo
         .reduce(|| true, |a, b| a && b)
 }
 
-/// The generic path: every cell's directions through `Grid::cell_dirs` and `Brdf::eval`.
+/// The generic path: every cell's directions (`Grid::cell_directions`, the bits of
+/// `Grid::cell_dirs`) through `Brdf::eval`.
 fn tabulate_generic(
     src: &dyn Brdf,
     grid: &Grid,
@@ -149,6 +150,7 @@ fn tabulate_generic(
     let cells = grid.cells();
     let d = grid.axes().len();
     let done = std::sync::atomic::AtomicU64::new(0);
+    let dirs = grid.cell_directions();
     data.par_chunks_mut(CHUNK_CELLS * c)
         .zip(valid.par_chunks_mut(CHUNK_CELLS))
         .enumerate()
@@ -159,7 +161,7 @@ fn tabulate_generic(
             for (j, okj) in ok.iter_mut().enumerate() {
                 let cell = first + j;
                 grid.unflatten(cell, &mut idx[..d]);
-                let (wi, wo) = grid.cell_dirs(&idx[..d]);
+                let (wi, wo) = dirs.at(&idx[..d]);
                 // The buffers may hold an earlier table: write every cell.
                 *okj = false;
                 vals[j * c..(j + 1) * c].fill(0.0);

@@ -5,6 +5,7 @@
 //! has a resolution, a warp from index space to angle ([`Warp`]) and a sample placement
 //! ([`Placement`]). Storage order and conventions are documented in `docs/parameterizations.md`.
 
+mod dirs;
 mod spec;
 
 use crate::geometry::{HalfDiff, Vec3};
@@ -12,6 +13,7 @@ use crate::math::{FRAC_PI_2, PI};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
+pub use dirs::CellDirections;
 pub use spec::parse_grid_spec;
 
 /// The parameterization.
