@@ -1089,46 +1089,76 @@ impl Table {
 
     /// The valid cell nearest (in index space) to continuous indices `t`, within
     /// [`Self::FALLBACK_RADIUS`] cells; ties go to the lowest flat index (deterministic).
+    ///
+    /// The box of (2r + 2)^d candidates (4096 on a 4-D grid) is visited shell by shell: each
+    /// axis's candidates sorted by their distance to `t`, shell m the cells whose largest
+    /// rank is m. Every cell of shell m is at least as far as the nearest of its axes' m-th
+    /// candidates, so once that bound exceeds the best found no later cell can win; the
+    /// answer is the minimum over the whole box, as a plain scan gives it.
     fn nearest_valid(&self, t: &[f64], strides: &[usize]) -> Option<usize> {
+        const SPAN: usize = (2 * Table::FALLBACK_RADIUS + 2) as usize;
         let axes = self.grid.axes();
         let d = t.len();
-        let r = Self::FALLBACK_RADIUS;
-        let span = (2 * r + 2) as usize;
+        // Per axis: (squared distance, unwrapped index) of each candidate, nearest first.
+        let mut cand = [[(0.0f64, 0i64); SPAN]; 4];
+        for k in 0..d {
+            let first = t[k].floor() as i64 - Self::FALLBACK_RADIUS;
+            for (o, c) in cand[k].iter_mut().enumerate() {
+                let i = first + o as i64;
+                *c = ((i as f64 - t[k]).powi(2), i);
+            }
+            cand[k].sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        }
+        let nearest_sum: f64 = (0..d).map(|k| cand[k][0].0).sum();
         let mut best: Option<(f64, usize)> = None;
-        let mut off = [0usize; 4];
-        'outer: loop {
-            let mut flat = 0usize;
-            let mut dist = 0.0;
-            let mut inside = true;
-            for k in 0..d {
-                let a = &axes[k];
-                let i = t[k].floor() as i64 - r + off[k] as i64;
-                let idx = if a.is_periodic() {
-                    i.rem_euclid(a.n as i64)
-                } else if i < 0 || i >= a.n as i64 {
-                    inside = false;
-                    0
-                } else {
-                    i
-                };
-                dist += (i as f64 - t[k]).powi(2);
-                flat += idx as usize * strides[k];
-            }
-            if inside
-                && self.valid[flat]
-                && best.is_none_or(|(bd, bf)| dist < bd || (dist == bd && flat < bf))
-            {
-                best = Some((dist, flat));
-            }
-            // Next offset (odometer over span^d).
-            for o in off.iter_mut().take(d) {
-                *o += 1;
-                if *o < span {
-                    continue 'outer;
+        for m in 0..SPAN {
+            if let Some((bd, _)) = best {
+                let bound = (0..d)
+                    .map(|k| nearest_sum - cand[k][0].0 + cand[k][m].0)
+                    .fold(f64::INFINITY, f64::min);
+                // A margin for the bound's other summation order: a cell at the best
+                // distance with a lower flat index must still be visited.
+                if bound > bd + 1e-9 * (1.0 + bd) {
+                    break;
                 }
-                *o = 0;
             }
-            break;
+            let mut rank = [0usize; 4];
+            'shell: loop {
+                if rank[..d].contains(&m) {
+                    let mut flat = 0usize;
+                    let mut dist = 0.0;
+                    let mut inside = true;
+                    for k in 0..d {
+                        let a = &axes[k];
+                        let (dk, i) = cand[k][rank[k]];
+                        let idx = if a.is_periodic() {
+                            i.rem_euclid(a.n as i64)
+                        } else if i < 0 || i >= a.n as i64 {
+                            inside = false;
+                            0
+                        } else {
+                            i
+                        };
+                        dist += dk;
+                        flat += idx as usize * strides[k];
+                    }
+                    if inside
+                        && self.valid[flat]
+                        && best.is_none_or(|(bd, bf)| dist < bd || (dist == bd && flat < bf))
+                    {
+                        best = Some((dist, flat));
+                    }
+                }
+                // Next rank tuple in [0, m]^d.
+                for r in rank.iter_mut().take(d) {
+                    *r += 1;
+                    if *r <= m {
+                        continue 'shell;
+                    }
+                    *r = 0;
+                }
+                break;
+            }
         }
         best.map(|(_, f)| f)
     }
@@ -1696,6 +1726,91 @@ mod tests {
     use crate::grid::parse_grid_spec;
     use crate::math::PI;
     use crate::tabulate::{TabulateOptions, tabulate};
+
+    /// The shell-by-shell search finds the cell a scan of the whole box finds (nearest in
+    /// index space, ties to the lowest flat index): 3-D and 4-D grids with a periodic axis
+    /// shorter than the box, sparse and dense validity, points near the grid's edges and
+    /// on exact half-integers (ties).
+    #[test]
+    fn the_nearest_valid_cell_is_the_scanned_one() {
+        fn scan(t: &Table, c: &[f64], strides: &[usize]) -> Option<usize> {
+            let r = Table::FALLBACK_RADIUS;
+            let span = (2 * r + 2) as usize;
+            let axes = t.grid.axes();
+            let d = c.len();
+            let mut best: Option<(f64, usize)> = None;
+            let mut off = [0usize; 4];
+            'outer: loop {
+                let (mut flat, mut dist, mut inside) = (0usize, 0.0, true);
+                for k in 0..d {
+                    let a = &axes[k];
+                    let i = c[k].floor() as i64 - r + off[k] as i64;
+                    let idx = if a.is_periodic() {
+                        i.rem_euclid(a.n as i64)
+                    } else if i < 0 || i >= a.n as i64 {
+                        inside = false;
+                        0
+                    } else {
+                        i
+                    };
+                    dist += (i as f64 - c[k]).powi(2);
+                    flat += idx as usize * strides[k];
+                }
+                if inside
+                    && t.valid[flat]
+                    && best.is_none_or(|(bd, bf)| dist < bd || (dist == bd && flat < bf))
+                {
+                    best = Some((dist, flat));
+                }
+                for o in off.iter_mut().take(d) {
+                    *o += 1;
+                    if *o < span {
+                        continue 'outer;
+                    }
+                    *o = 0;
+                }
+                break;
+            }
+            best.map(|(_, f)| f)
+        }
+        let mut rng = crate::math::SplitMix64::new(41);
+        for spec in [
+            "halfdiff3:12x10x6",
+            "halfdiff4:9x5x8x11",
+            "spherical3:7x9x16",
+        ] {
+            let g = parse_grid_spec(spec).unwrap();
+            let d = g.axes().len();
+            let strides: Vec<usize> = (0..d)
+                .map(|k| g.axes()[k + 1..].iter().map(|a| a.n).product())
+                .collect();
+            for density in [0.02, 0.3, 0.9] {
+                let mut t = Table::zeroed(g.clone(), Channels::default_for(1));
+                for v in t.valid.iter_mut() {
+                    *v = rng.next_f64() < density;
+                }
+                let mut found = 0;
+                for q in 0..3000 {
+                    let c: Vec<f64> = g
+                        .axes()
+                        .iter()
+                        .map(|a| {
+                            let x = rng.next_f64() * (a.n as f64 + 2.0) - 1.0;
+                            if q % 5 == 0 { x.floor() + 0.5 } else { x }
+                        })
+                        .collect();
+                    let want = scan(&t, &c, &strides);
+                    assert_eq!(
+                        t.nearest_valid(&c, &strides),
+                        want,
+                        "{spec} {density} {c:?}"
+                    );
+                    found += want.is_some() as usize;
+                }
+                assert!(found > 100, "{spec} {density}: {found}");
+            }
+        }
+    }
 
     #[test]
     fn the_stencils_of_pairs_in_another_order_are_the_same_stencils_in_that_order() {

@@ -84,6 +84,10 @@ pub struct ReferenceSet {
     len: usize,
     pub values: Vec<f64>,
     pub channels: usize,
+    /// [`ReferenceSet::epsilon_low`] of the first set size asked for: it depends on the
+    /// values alone, and each grid a planner tries asks again (400 resamples of 131,072
+    /// pairs, ~0.25 s).
+    epsilon_low: std::sync::OnceLock<(usize, f64)>,
 }
 
 /// How a [`ReferenceSet`]'s pairs are drawn (deterministic: the same pairs every time).
@@ -196,8 +200,13 @@ impl Scored {
         debug_assert!(set.weights.is_none(), "uniform draws have equal weights");
         let stencil = table.stencil(&set.pairs, Interp::Linear);
         // A set holds at most MAX_SAMPLES (< 2³²) pairs.
-        let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
-        order.sort_by_key(|&p| (stencil.first_cell(p as usize), p));
+        // Keys made once, not per comparison; (cell, pair) is unique, so the order is the
+        // same whatever the sort.
+        let mut keyed: Vec<(usize, u32)> = (0..stencil.len() as u32)
+            .map(|p| (stencil.first_cell(p as usize), p))
+            .collect();
+        keyed.sort_unstable();
+        let order: Vec<u32> = keyed.into_iter().map(|(_, p)| p).collect();
         // The stencils again, of the pairs in their new order, rather than a reordered copy:
         // a pair's stencil depends on that pair alone (`Table::stencil`; tested in
         // `table::tests`), and the set's two stencils are not held at once (12.5 MB each for
@@ -256,6 +265,7 @@ impl ReferenceSet {
             len: set.pairs.len(),
             values,
             channels: source.channels().len(),
+            epsilon_low: std::sync::OnceLock::new(),
         }
     }
 
@@ -318,6 +328,17 @@ impl ReferenceSet {
     /// A low ε for independent sets of `n` pairs: the 0.5% quantile of 1e-3 · mean |f| over
     /// 400 bootstrap resamples of `n` pairs of this set (deterministic: a fixed seed).
     pub fn epsilon_low(&self, n: usize) -> f64 {
+        let &(first, low) = self
+            .epsilon_low
+            .get_or_init(|| (n, self.epsilon_low_uncached(n)));
+        if first == n {
+            low
+        } else {
+            self.epsilon_low_uncached(n)
+        }
+    }
+
+    fn epsilon_low_uncached(&self, n: usize) -> f64 {
         let c = self.channels.max(1);
         let per_pair: Vec<f64> = self
             .values
