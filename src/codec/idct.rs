@@ -22,7 +22,7 @@
 
 use super::DecodeScratch;
 use super::dct::{Coefficients, dct_entry};
-use super::simd::{Finisher, dispatch, finish, finish_from};
+use super::simd::{Finisher, dispatch, finish, finish_one_from};
 
 /// One axis of the inverse: the transposed DCT basis truncated to the box's frequencies,
 /// for the first half of the outputs only. `rows[k·hp + n]` = C[k][n] (n < h = ⌈N/2⌉, zero
@@ -380,14 +380,20 @@ pub(crate) fn decode(
     }
     let (last, orders) = shared_orders(comps, dims);
     let cells: usize = dims.iter().product();
-    // A single decode of a large table finishes in place when that holds less: always for
-    // one component (its plane is `out`), for three when their intermediates (every axis
-    // but the last expanded) would outgrow the two planes of their own it needs.
-    if scratch.is_lean()
-        && cells * c > IN_PLACE_CELLS
-        && (c == 1 || intermediates(comps, dims, &orders) > 2 * cells)
-    {
-        decode_in_place(comps, steps, dims, &orders, fin, valid, out, scratch);
+    // A single decode of a large one-component table expands and finishes in `out` itself.
+    // (Three components would need two planes of their own for the in-place finish, about
+    // what their intermediates hold, and their full expansions in place cost more time.)
+    if scratch.is_lean() && c == 1 && cells > IN_PLACE_CELLS {
+        decode_in_place(
+            &mut comps[0],
+            steps[0],
+            dims,
+            &orders[0],
+            fin,
+            valid,
+            out,
+            scratch,
+        );
         return;
     }
     if d == 3 && last == 0 {
@@ -451,73 +457,44 @@ fn shared_orders(comps: &[Coefficients], dims: &[usize]) -> (usize, Vec<Vec<usiz
     (last, orders)
 }
 
-/// Values of the intermediates [`decode`] holds for its fused last pass: each component
-/// expanded along every axis of its order but the last.
-fn intermediates(comps: &[Coefficients], dims: &[usize], orders: &[Vec<usize>]) -> usize {
-    comps
-        .iter()
-        .zip(orders)
-        .filter(|(q, o)| !q.codes.is_empty() && o.len() == dims.len())
-        .map(|(q, o)| largest_shape(&q.extent, dims, &o[..o.len() - 1]))
-        .sum()
-}
-
-/// [`decode`] of a large table by a single decode ([`DecodeScratch::lean`]): each component
-/// dequantized and expanded along every axis in the array it is finished from (component 0
-/// in `out` itself, the others in arrays of their own), then every cell finished in place, a
-/// chunk at a time from the last cell down (cell i's C values go to C·i.., never onto the
-/// first component's cells below i, which are not read yet). A whole pass along the last
+/// [`decode`] of a large one-component table by a single decode ([`DecodeScratch::lean`]):
+/// the box dequantized and expanded along every axis in `out` itself, then every cell
+/// finished in place, a chunk at a time through a small copy. A whole pass along the last
 /// axis has the arithmetic of [`decode`]'s fused last pass (tested): the same bits, without
-/// every component's intermediate beside `out`.
-#[allow(clippy::too_many_arguments)] // `decode`'s arguments and its axis orders.
+/// the intermediate beside `out`.
+#[allow(clippy::too_many_arguments)] // `decode`'s arguments and the axis order.
 fn decode_in_place(
-    comps: &mut [Coefficients],
-    steps: &[f64],
+    q: &mut Coefficients,
+    step: f64,
     dims: &[usize],
-    orders: &[Vec<usize>],
+    order: &[usize],
     fin: &Finisher,
     valid: &[bool],
     out: &mut [f32],
     scratch: &mut DecodeScratch,
 ) {
-    // Cells finished per chunk: the first component's copy is this many floats.
+    // Cells finished per chunk: the copy is this many floats.
     const CHUNK: usize = 1 << 14;
-    let c = comps.len();
     let cells: usize = dims.iter().product();
-    let mut others: Vec<Vec<f32>> = Vec::with_capacity(c.saturating_sub(1));
-    for (k, ((q, &s), order)) in comps.iter_mut().zip(steps).zip(orders).enumerate() {
-        if k == 0 {
-            expand_whole(q, s, dims, order, &mut out[..cells], scratch);
-        } else {
-            let mut plane = scratch.take_f32(cells);
-            expand_whole(q, s, dims, order, &mut plane[..cells], scratch);
-            others.push(plane);
-        }
-    }
-    let mut first = scratch.take_f32(CHUNK);
-    let mut end = cells;
-    while end > 0 {
-        let start = end.saturating_sub(CHUNK);
-        first[..end - start].copy_from_slice(&out[start..end]);
-        let planes: Vec<&[f32]> = std::iter::once(&first[..end - start])
-            .chain(others.iter().map(|p| &p[start..end]))
-            .collect();
-        finish_from(
+    expand_whole(q, step, dims, order, &mut out[..cells], scratch);
+    let mut copy = scratch.take_f32(CHUNK);
+    let mut start = 0;
+    while start < cells {
+        let end = (start + CHUNK).min(cells);
+        copy[..end - start].copy_from_slice(&out[start..end]);
+        finish_one_from(
             fin,
-            &planes,
+            &copy[..end - start],
             start,
             &valid[start..end],
-            &mut out[start * c..end * c],
+            &mut out[start..end],
         );
-        end = start;
+        start = end;
     }
-    scratch.give_f32(first);
-    for p in others {
-        scratch.give_f32(p);
-    }
+    scratch.give_f32(copy);
 }
 
-/// One component of [`decode_in_place`]: its box dequantized into `plane` (every cell) and
+/// The component of [`decode_in_place`]: its box dequantized into `plane` (every cell) and
 /// expanded there along `order` (every axis); its codes given back once dequantized. An
 /// empty component is 0 everywhere, as in [`decode`].
 fn expand_whole(
@@ -1587,10 +1564,9 @@ mod tests {
         }
     }
 
-    /// A large single decode ([`decode_in_place`]: every component expanded whole, then
-    /// finished in place from the last cell down) gives the bits of the fused decode, for 1
-    /// and 3 components, 3 and 4 axes, every shared last axis, an empty component, a
-    /// weighted finisher, and more cells than a chunk.
+    /// A large single decode of one component ([`decode_in_place`]: expanded whole in the
+    /// output, then finished in place) gives the bits of the fused decode: 3 and 4 axes,
+    /// every last axis, full and partial boxes, an empty component, more cells than a chunk.
     #[test]
     fn the_in_place_decode_gives_the_fused_bits() {
         let cases: [(&[usize], [&[usize]; 3]); 3] = [
@@ -1601,111 +1577,89 @@ mod tests {
             ),
             (&[33, 40, 30], [&[20, 31, 9], &[33, 40, 30], &[4, 7, 2]]),
         ];
+        let fin = Finisher::example(1);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         for (seed, (dims, extents)) in cases.iter().enumerate() {
             let mut rng = crate::math::SplitMix64::new(seed as u64 + 29);
-            let comps: Vec<Coefficients> = extents
-                .iter()
-                .map(|e| {
-                    let total: usize = e.iter().product();
-                    Coefficients {
-                        extent: if total == 0 { Vec::new() } else { e.to_vec() },
-                        codes: (0..total)
-                            .map(|_| {
-                                if rng.next_f64() < 0.4 {
-                                    0
-                                } else {
-                                    (rng.next_f64() * 2000.0 - 1000.0) as i32
-                                }
-                            })
-                            .collect(),
-                    }
-                })
-                .collect();
             let cells: usize = dims.iter().product();
             let valid: Vec<bool> = (0..cells).map(|_| rng.next_f64() > 0.2).collect();
-            let steps = [0.01, 0.003, 0.02];
-            for c in [1usize, 3] {
-                let fin = Finisher::example(c);
-                let mut fused = vec![f32::NAN; cells * c];
+            for (k, e) in extents.iter().enumerate() {
+                let total: usize = e.iter().product();
+                let q = Coefficients {
+                    extent: if total == 0 { Vec::new() } else { e.to_vec() },
+                    codes: (0..total)
+                        .map(|_| {
+                            if rng.next_f64() < 0.4 {
+                                0
+                            } else {
+                                (rng.next_f64() * 2000.0 - 1000.0) as i32
+                            }
+                        })
+                        .collect(),
+                };
+                let step = [0.01, 0.003, 0.02][k];
+                // The decode's own last axis, through `decode` (fused), and every other.
+                let mut fused = vec![f32::NAN; cells];
+                let scratch = &mut DecodeScratch::default();
                 decode(
-                    &mut comps[..c].to_vec(),
-                    &steps[..c],
+                    &mut [q.clone()],
+                    &[step],
                     dims,
                     &fin,
                     &valid,
                     &mut fused,
-                    &mut DecodeScratch::default(),
+                    scratch,
                 );
+                let (chosen, orders) = shared_orders(std::slice::from_ref(&q), dims);
                 for last in 0..dims.len() {
-                    let orders: Vec<Vec<usize>> = comps[..c]
-                        .iter()
-                        .map(|q| {
-                            if q.codes.is_empty() {
-                                Vec::new()
-                            } else {
-                                cheapest_order(&q.extent, dims, Some(last)).1
-                            }
-                        })
-                        .collect();
-                    let mut reference = vec![f32::NAN; cells * c];
-                    // The fused decode with this last axis: every pass but the last, then
-                    // the last fused with the finisher.
-                    let mut planes = Vec::new();
-                    let mut bases = Vec::new();
-                    for ((q, &s), o) in comps[..c].iter().zip(&steps).zip(&orders) {
-                        if q.codes.is_empty() {
-                            planes.push(Vec::new());
-                            bases.push(HalfBasis::new(dims[last], 0));
-                        } else {
-                            let d = dims.len();
-                            let scratch = &mut DecodeScratch::default();
-                            let (a, shape) = expand_along(q, dims, s, &o[..d - 1], scratch);
-                            let n: usize = shape.iter().product();
-                            planes.push(a[..n].to_vec());
-                            bases.push(HalfBasis::new(dims[last], q.extent[last]));
-                        }
-                    }
-                    let views: Vec<&[f32]> = planes.iter().map(|p| p.as_slice()).collect();
-                    let outer: usize = dims[..last].iter().product();
-                    let inner: usize = dims[last + 1..].iter().product();
-                    if c == 1 {
-                        final_1(&views, &bases, outer, inner, &fin, &valid, &mut reference);
+                    let order = if q.codes.is_empty() {
+                        Vec::new()
                     } else {
-                        final_3(&views, &bases, outer, inner, &fin, &valid, &mut reference);
+                        cheapest_order(&q.extent, dims, Some(last)).1
+                    };
+                    let mut reference = fused.clone();
+                    if last != chosen && !q.codes.is_empty() {
+                        let d = dims.len();
+                        let (a, shape) = expand_along(&q, dims, step, &order[..d - 1], scratch);
+                        let n: usize = shape.iter().product();
+                        let basis = [HalfBasis::new(dims[last], q.extent[last])];
+                        let outer: usize = dims[..last].iter().product();
+                        let inner: usize = dims[last + 1..].iter().product();
+                        final_1(
+                            &[&a[..n]],
+                            &basis,
+                            outer,
+                            inner,
+                            &fin,
+                            &valid,
+                            &mut reference,
+                        );
                     }
-                    let mut in_place = vec![f32::NAN; cells * c];
+                    let order = if last == chosen {
+                        orders[0].clone()
+                    } else {
+                        order
+                    };
+                    let mut in_place = vec![f32::NAN; cells];
+                    let lean = &mut DecodeScratch::lean();
                     decode_in_place(
-                        &mut comps[..c].to_vec(),
-                        &steps[..c],
+                        &mut q.clone(),
+                        step,
                         dims,
-                        &orders,
+                        &order,
                         &fin,
                         &valid,
                         &mut in_place,
-                        &mut DecodeScratch::lean(),
+                        lean,
                     );
-                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert!(
                         bits(&in_place) == bits(&reference),
-                        "{dims:?}, {c} components, last axis {last}"
+                        "{dims:?}, component {k}, last axis {last}"
                     );
-                    assert!(in_place.iter().any(|&v| v > 0.0));
                 }
-                // And the decode's own choice of the last axis, through `decode`.
-                let mut lean = vec![f32::NAN; cells * c];
-                let (_, orders) = shared_orders(&comps[..c], dims);
-                decode_in_place(
-                    &mut comps[..c].to_vec(),
-                    &steps[..c],
-                    dims,
-                    &orders,
-                    &fin,
-                    &valid,
-                    &mut lean,
-                    &mut DecodeScratch::lean(),
-                );
-                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                assert!(bits(&lean) == bits(&fused), "{dims:?}, {c} components");
+                if !q.codes.is_empty() {
+                    assert!(fused.iter().any(|&v| v > 0.0));
+                }
             }
         }
     }

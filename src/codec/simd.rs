@@ -684,32 +684,23 @@ pub(crate) fn finish(f: &Finisher, planes: &[&[f32]], valid: &[bool], out: &mut 
     }
 }
 
-/// [`finish`] of the layout's cells `first..first + valid.len()`, which `planes` and `out`
-/// hold alone (1 or 3 components): a decode that finishes its planes a chunk at a time.
-pub(crate) fn finish_from(
+/// [`finish`] of one component's cells `first..first + valid.len()` of the layout, which
+/// `plane` and `out` hold alone: a decode that finishes its plane a chunk at a time.
+pub(crate) fn finish_one_from(
     f: &Finisher,
-    planes: &[&[f32]],
+    plane: &[f32],
     first: usize,
     valid: &[bool],
     out: &mut [f32],
 ) {
-    match planes.len() {
-        1 => finish_from_1(f, planes, first, valid, out),
-        3 => finish_from_3(f, planes, first, valid, out),
-        n => unreachable!("finish_from of {n} components (only 1 or 3)"),
-    }
+    finish_from_1(f, plane, first, valid, out)
 }
 
-dispatch!(fn finish_from_1 / finish_from_1_avx2 => finish_from_c1(f: &Finisher, planes: &[&[f32]], first: usize, valid: &[bool], out: &mut [f32]));
-dispatch!(fn finish_from_3 / finish_from_3_avx2 => finish_from_c3(f: &Finisher, planes: &[&[f32]], first: usize, valid: &[bool], out: &mut [f32]));
+dispatch!(fn finish_from_1 / finish_from_1_avx2 => finish_from_c1(f: &Finisher, plane: &[f32], first: usize, valid: &[bool], out: &mut [f32]));
 
 #[inline(always)]
-fn finish_from_c1(f: &Finisher, p: &[&[f32]], first: usize, v: &[bool], o: &mut [f32]) {
-    f.run::<1>([p[0]], first, v, o)
-}
-#[inline(always)]
-fn finish_from_c3(f: &Finisher, p: &[&[f32]], first: usize, v: &[bool], o: &mut [f32]) {
-    f.run::<3>([p[0], p[1], p[2]], first, v, o)
+fn finish_from_c1(f: &Finisher, p: &[f32], first: usize, v: &[bool], o: &mut [f32]) {
+    f.run::<1>([p], first, v, o)
 }
 
 dispatch!(fn finish_1 / finish_1_avx2 => finish_c1(f: &Finisher, planes: &[&[f32]], valid: &[bool], out: &mut [f32]));
