@@ -200,13 +200,10 @@ impl Scored {
         debug_assert!(set.weights.is_none(), "uniform draws have equal weights");
         let stencil = table.stencil(&set.pairs, Interp::Linear);
         // A set holds at most MAX_SAMPLES (< 2³²) pairs.
-        // Keys made once, not per comparison; (cell, pair) is unique, so the order is the
-        // same whatever the sort.
-        let mut keyed: Vec<(usize, u32)> = (0..stencil.len() as u32)
-            .map(|p| (stencil.first_cell(p as usize), p))
-            .collect();
-        keyed.sort_unstable();
-        let order: Vec<u32> = keyed.into_iter().map(|(_, p)| p).collect();
+        // (cell, pair) is unique, so any sort gives this order; the unstable one needs no
+        // buffer (this is the high-water mark of `compress`, below).
+        let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
+        order.sort_unstable_by_key(|&p| (stencil.first_cell(p as usize), p));
         // The stencils again, of the pairs in their new order, rather than a reordered copy:
         // a pair's stencil depends on that pair alone (`Table::stencil`; tested in
         // `table::tests`), and the set's two stencils are not held at once (12.5 MB each for
