@@ -1507,6 +1507,19 @@ mod tests {
         assert!(gap <= 1e-5, "gap {gap}");
     }
 
+    /// `n` codes, 40% zero, the others uniform in (−1000, 1000).
+    fn random_codes(n: usize, rng: &mut crate::math::SplitMix64) -> Vec<i32> {
+        (0..n)
+            .map(|_| {
+                if rng.next_f64() < 0.4 {
+                    0
+                } else {
+                    (rng.next_f64() * 2000.0 - 1000.0) as i32
+                }
+            })
+            .collect()
+    }
+
     /// The in-place expansion of a single (lean) decode gives the bits of the two-array one:
     /// every axis order, full and partial boxes, rows wider than a column tile with
     /// remainders wider and narrower than a vector, and the contiguous axis in groups.
@@ -1524,15 +1537,7 @@ mod tests {
             let mut rng = crate::math::SplitMix64::new(seed as u64 + 17);
             let c = Coefficients {
                 extent: extent.to_vec(),
-                codes: (0..total)
-                    .map(|_| {
-                        if rng.next_f64() < 0.4 {
-                            0
-                        } else {
-                            (rng.next_f64() * 2000.0 - 1000.0) as i32
-                        }
-                    })
-                    .collect(),
+                codes: random_codes(total, &mut rng),
             };
             let d = dims.len();
             let mut order: Vec<usize> = (0..d).collect();
@@ -1587,15 +1592,7 @@ mod tests {
                 let total: usize = e.iter().product();
                 let q = Coefficients {
                     extent: if total == 0 { Vec::new() } else { e.to_vec() },
-                    codes: (0..total)
-                        .map(|_| {
-                            if rng.next_f64() < 0.4 {
-                                0
-                            } else {
-                                (rng.next_f64() * 2000.0 - 1000.0) as i32
-                            }
-                        })
-                        .collect(),
+                    codes: random_codes(total, &mut rng),
                 };
                 let step = [0.01, 0.003, 0.02][k];
                 // The decode's own last axis, through `decode` (fused), and every other.
