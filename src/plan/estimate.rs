@@ -194,28 +194,51 @@ impl Scored {
     /// `reference`'s pairs reordered by the first cell they read on `table`, so that
     /// measuring a candidate walks the table roughly in memory order (the metrics do not
     /// depend on pair order).
-    fn new(table: &Table, reference: &ReferenceSet) -> Scored {
+    ///
+    /// `hint`, the order of another estimator of the same pairs on the same grid (the
+    /// planner measures each grid with several interpolations), is tried first: the stencils
+    /// made in that order are kept when it is this table's order too (each pair's first cell,
+    /// then its index, strictly increasing), which saves one of the two stencil builds;
+    /// otherwise the order comes from those stencils and they are made again.
+    fn new(table: &Table, reference: &ReferenceSet, hint: Option<&[u32]>) -> Scored {
         let c = reference.channels;
         let set = reference.set();
         debug_assert!(set.weights.is_none(), "uniform draws have equal weights");
-        let stencil = table.stencil(&set.pairs, Interp::Linear);
+        let reordered = |order: &[u32]| -> Vec<(Vec3, Vec3)> {
+            order.iter().map(|&p| set.pairs[p as usize]).collect()
+        };
         // A set holds at most MAX_SAMPLES (< 2³²) pairs.
-        // (cell, pair) is unique, so any sort gives this order; the unstable one needs no
-        // buffer (this is the high-water mark of `compress`, below).
-        let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
-        order.sort_unstable_by_key(|&p| (stencil.first_cell(p as usize), p));
-        // The stencils again, of the pairs in their new order, rather than a reordered copy:
-        // a pair's stencil depends on that pair alone (`Table::stencil`; tested in
-        // `table::tests`), and the set's two stencils are not held at once (12.5 MB each for
-        // the estimation set on the 52 MiB table of docs/robustness.md: the high-water mark
-        // of `compress` was reached here).
-        drop(stencil);
+        let (stencil, unordered) = match hint.filter(|h| h.len() == set.pairs.len()) {
+            Some(h) => (table.stencil(&reordered(h), Interp::Linear), h.to_vec()),
+            None => (
+                table.stencil(&set.pairs, Interp::Linear),
+                (0..set.pairs.len() as u32).collect(),
+            ),
+        };
+        // `unordered[i]` is the pair of stencil i.
+        let key = |i: usize| (stencil.first_cell(i), unordered[i]);
+        let (order, stencil) = if hint.is_some() && (1..stencil.len()).all(|i| key(i - 1) < key(i))
+        {
+            (unordered, stencil)
+        } else {
+            // (cell, pair) is unique, so any sort gives this order; the unstable one needs
+            // no buffer (this is the high-water mark of `compress`, below).
+            let mut at: Vec<u32> = (0..stencil.len() as u32).collect();
+            at.sort_unstable_by_key(|&i| key(i as usize));
+            let order: Vec<u32> = at.iter().map(|&i| unordered[i as usize]).collect();
+            // The stencils again, of the pairs in their new order, rather than a reordered
+            // copy: a pair's stencil depends on that pair alone (`Table::stencil`; tested in
+            // `table::tests`), and the set's two stencils are not held at once (12.5 MB each
+            // for the estimation set on the 52 MiB table of docs/robustness.md: the
+            // high-water mark of `compress` was reached here).
+            drop(stencil);
+            drop(at);
+            let stencil = table.stencil(&reordered(&order), Interp::Linear);
+            (order, stencil)
+        };
         let cos_i = order.iter().map(|&p| set.pairs[p as usize].0.z).collect();
         let cos_o = order.iter().map(|&p| set.pairs[p as usize].1.z).collect();
-        let ordered: Vec<(Vec3, Vec3)> = order.iter().map(|&p| set.pairs[p as usize]).collect();
         drop(set);
-        let stencil = table.stencil(&ordered, Interp::Linear);
-        drop(ordered);
         let mut values = Vec::with_capacity(reference.values.len());
         for &p in &order {
             let p = p as usize;
@@ -386,6 +409,29 @@ impl ErrorEstimator {
         check: Option<&ReferenceSet>,
         for_samples: usize,
     ) -> Result<Self> {
+        Self::build(table, reference, check, for_samples, None)
+    }
+
+    /// [`ErrorEstimator::new`] for the same sets on `previous`'s grid with another
+    /// interpolation (weight or space): `previous`'s pair orders are tried first, which
+    /// usually saves a stencil build per set. The same estimator as `new` gives.
+    pub fn new_following(
+        table: &Table,
+        reference: &ReferenceSet,
+        check: Option<&ReferenceSet>,
+        for_samples: usize,
+        previous: &ErrorEstimator,
+    ) -> Result<Self> {
+        Self::build(table, reference, check, for_samples, Some(previous))
+    }
+
+    fn build(
+        table: &Table,
+        reference: &ReferenceSet,
+        check: Option<&ReferenceSet>,
+        for_samples: usize,
+        previous: Option<&ErrorEstimator>,
+    ) -> Result<Self> {
         let c = table.channels().len();
         for r in std::iter::once(reference).chain(check) {
             if r.channels != c {
@@ -399,12 +445,15 @@ impl ErrorEstimator {
             pairs,
             reference: values,
             stencil,
-        } = Scored::new(table, reference);
+        } = Scored::new(table, reference, previous.map(|p| &p.pairs.index[..]));
+        let check_hint = previous
+            .and_then(|p| p.check.as_ref())
+            .map(|s| &s.pairs.index[..]);
         Ok(ErrorEstimator {
             pairs,
             stencil,
             reference: values,
-            check: check.map(|r| Scored::new(table, r)),
+            check: check.map(|r| Scored::new(table, r, check_hint)),
             channels: c,
             epsilon: reference.epsilon(),
             epsilon_low: reference.epsilon_low(for_samples.max(1)),
@@ -633,6 +682,61 @@ mod tests {
         assert_eq!(e.metrics.p99_rel_core, direct.p99_rel_core);
         assert_eq!(e.metrics.max_abs, direct.max_abs);
         assert_eq!(e.metrics.max_abs_at, direct.max_abs_at);
+    }
+
+    /// An estimator following another (same sets and grid, another interpolation) is the
+    /// one `new` makes: the same pair orders and the same estimates, bit for bit, whether
+    /// the previous order is kept (a change of space) or not (the cosine weight, whose
+    /// stencils read other cells near the horizon), and on a θmax grid; and when the
+    /// previous order is not this table's (another grid's estimator), rejected and remade.
+    #[test]
+    fn an_estimator_following_another_is_the_new_one() {
+        let m = Model::parse("lambert:albedo=0.05+ggx:alpha=0.1,fresnel=au").unwrap();
+        for spec in [
+            "halfdiff3:16x16x24,warp=sqrt/linear/linear",
+            "spherical3:12x12x24,theta-max=70",
+        ] {
+            let g = parse_grid_spec(spec).unwrap();
+            let mut t = tabulate(&m, &g, &Default::default()).unwrap();
+            let reference = ReferenceSet::new_in(&m, 6000, Some(&g));
+            let check = ReferenceSet::uniform_in(&m, 3000, 7, Some(&g));
+            let first = ErrorEstimator::new(&t, &reference, Some(&check), 3000).unwrap();
+            let mut previous = first;
+            for step in 0..3 {
+                match step {
+                    0 => t.set_interp_space(crate::grid::InterpSpace::log(1e-3).unwrap()),
+                    1 => t.set_interp_weight(crate::grid::InterpWeight::Cosine),
+                    _ => t.set_interp_space(crate::grid::InterpSpace::Linear),
+                }
+                let fresh = ErrorEstimator::new(&t, &reference, Some(&check), 3000).unwrap();
+                let following =
+                    ErrorEstimator::new_following(&t, &reference, Some(&check), 3000, &previous)
+                        .unwrap();
+                assert_eq!(fresh.pairs.index, following.pairs.index, "{spec} {step}");
+                let check_order =
+                    |e: &ErrorEstimator| e.check.as_ref().unwrap().pairs.index.clone();
+                assert_eq!(
+                    check_order(&fresh),
+                    check_order(&following),
+                    "{spec} {step}"
+                );
+                let (a, b) = (fresh.measure(t.data()), following.measure(t.data()));
+                assert_eq!(format!("{a:?}"), format!("{b:?}"), "{spec} {step}");
+                previous = following;
+            }
+            // An order that is not this table's (another grid's): rejected, remade.
+            let other = parse_grid_spec("halfdiff3:9x13x20").unwrap();
+            let o = tabulate(&m, &other, &Default::default()).unwrap();
+            let foreign = ErrorEstimator::new(&o, &reference, Some(&check), 3000).unwrap();
+            assert_ne!(foreign.pairs.index, previous.pairs.index);
+            let fresh = ErrorEstimator::new(&t, &reference, Some(&check), 3000).unwrap();
+            let following =
+                ErrorEstimator::new_following(&t, &reference, Some(&check), 3000, &foreign)
+                    .unwrap();
+            assert_eq!(fresh.pairs.index, following.pairs.index, "{spec}");
+            let (a, b) = (fresh.measure(t.data()), following.measure(t.data()));
+            assert_eq!(format!("{a:?}"), format!("{b:?}"), "{spec}");
+        }
     }
 
     /// Every draw gives pair k again as its set holds it, bit for bit.

@@ -220,7 +220,13 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             // The table's grid as it now interpolates, measured; kept when its own error uses
             // less of the budget than the best so far.
             let closer = |table: &Table, est: &mut ErrorEstimator, floor: &mut Estimate| {
-                let e = ErrorEstimator::new(table, &reference, Some(&check), for_samples)?;
+                let e = ErrorEstimator::new_following(
+                    table,
+                    &reference,
+                    Some(&check),
+                    for_samples,
+                    est,
+                )?;
                 let f = e.measure(table.data());
                 let better =
                     floor_share(&settings.budget, &f) < floor_share(&settings.budget, floor);
