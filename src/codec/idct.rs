@@ -299,10 +299,20 @@ fn expand_along(
 /// The box's codes × step (from `scratch`, possibly longer than the box).
 fn dequantize(c: &Coefficients, step: f64, scratch: &mut DecodeScratch) -> Vec<f32> {
     let mut cur = scratch.take_f32(c.codes.len());
-    for (d, &q) in cur.iter_mut().zip(&c.codes) {
+    dequantize_into(c, step, &mut cur);
+    cur
+}
+
+/// The box's codes × step into the start of `out`.
+fn dequantize_into(c: &Coefficients, step: f64, out: &mut [f32]) {
+    for (d, &q) in out.iter_mut().zip(&c.codes) {
         *d = (q as f64 * step) as f32;
     }
-    cur
+}
+
+/// A component with nothing coded (no codes, or a box of another dimension): 0 everywhere.
+fn is_empty_box(q: &Coefficients, d: usize) -> bool {
+    q.codes.is_empty() || q.extent.len() != d
 }
 
 /// [`expand_along`] of a box already dequantized into `cur` (`c` gives its extent; its
@@ -342,7 +352,7 @@ fn dct_pass<'a>(
 /// Reconstructs one component plane (every cell) from its quantized box, in f32.
 pub fn inverse(c: &Coefficients, dims: &[usize], step: f64) -> Vec<f32> {
     let cells: usize = dims.iter().product();
-    if c.codes.is_empty() || c.extent.len() != dims.len() {
+    if is_empty_box(c, dims.len()) {
         return vec![0.0; cells];
     }
     let scratch = &mut DecodeScratch::default();
@@ -367,7 +377,7 @@ pub(crate) fn decode(
 ) {
     let c = comps.len();
     let d = dims.len();
-    let empty = |q: &Coefficients| q.codes.is_empty() || q.extent.len() != d;
+    let empty = |q: &Coefficients| is_empty_box(q, d);
     if !(c == 1 || c == 3) || d == 0 {
         let planes: Vec<Vec<f32>> = comps
             .iter()
@@ -434,7 +444,7 @@ pub(crate) fn decode(
 /// them) and each component's axis order ending in it (empty for an empty component).
 fn shared_orders(comps: &[Coefficients], dims: &[usize]) -> (usize, Vec<Vec<usize>>) {
     let d = dims.len();
-    let empty = |q: &Coefficients| q.codes.is_empty() || q.extent.len() != d;
+    let empty = |q: &Coefficients| is_empty_box(q, d);
     // The shared last axis: the lowest total cost over the components.
     let mut best: Option<(f64, usize, Vec<Vec<usize>>)> = None;
     for last in 0..d {
@@ -505,13 +515,11 @@ fn expand_whole(
     plane: &mut [f32],
     scratch: &mut DecodeScratch,
 ) {
-    if q.codes.is_empty() || q.extent.len() != dims.len() {
+    if is_empty_box(q, dims.len()) {
         plane.fill(0.0);
         return;
     }
-    for (d, &v) in plane.iter_mut().zip(&q.codes) {
-        *d = (v as f64 * step) as f32;
-    }
+    dequantize_into(q, step, plane);
     scratch.give_i32(std::mem::take(&mut q.codes));
     let mut shape = q.extent.clone();
     expand_in_slice(plane, &mut shape, dims, order, scratch, dct_pass(q, dims));
@@ -728,7 +736,7 @@ fn decode_tiled(
         let mut rows = (Vec::new(), Vec::new());
         let mut a = scratch.take_f32(0);
         let mut range = 0..0;
-        if q.codes.is_empty() || q.extent.len() != 3 {
+        if is_empty_box(q, 3) {
             bases.push(HalfBasis::new(dims[0], 0));
         } else {
             let len = width * q.extent[0];

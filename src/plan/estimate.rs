@@ -223,16 +223,19 @@ impl Scored {
         } else {
             // (cell, pair) is unique, so any sort gives this order; the unstable one needs
             // no buffer (this is the high-water mark of `compress`, below).
-            let mut at: Vec<u32> = (0..stencil.len() as u32).collect();
-            at.sort_unstable_by_key(|&i| key(i as usize));
-            let order: Vec<u32> = at.iter().map(|&i| unordered[i as usize]).collect();
+            let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
+            order.sort_unstable_by_key(|&i| key(i as usize));
+            // Stencil positions to pairs, in place.
+            for i in order.iter_mut() {
+                *i = unordered[*i as usize];
+            }
+            drop(unordered);
             // The stencils again, of the pairs in their new order, rather than a reordered
             // copy: a pair's stencil depends on that pair alone (`Table::stencil`; tested in
             // `table::tests`), and the set's two stencils are not held at once (12.5 MB each
             // for the estimation set on the 52 MiB table of docs/robustness.md: the
             // high-water mark of `compress` was reached here).
             drop(stencil);
-            drop(at);
             let stencil = table.stencil(&reordered(&order), Interp::Linear);
             (order, stencil)
         };
