@@ -6,8 +6,11 @@ use crate::grid::{CellCosProducts, Grid, InterpSpace, InterpWeight};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
+mod cells;
 pub mod lookup;
 mod to_rgb;
+
+pub use cells::CellSet;
 pub use to_rgb::spectral_to_rgb;
 
 /// Where a table came from, recorded in every file written.
@@ -412,12 +415,13 @@ impl Table {
         weigh: impl Fn(usize, f64) -> f64,
     ) {
         let c = self.channels.len();
-        let (wsum, tcont) = self.corners_masked(t_in, interp, layout, mask, |flat, w| {
-            let w = weigh(flat, w);
-            for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
-                *o += w * v as f64;
-            }
-        });
+        let Corners { wsum, tcont, .. } =
+            self.corners_masked(t_in, interp, layout, mask, |flat, w| {
+                let w = weigh(flat, w);
+                for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
+                    *o += w * v as f64;
+                }
+            });
         if wsum > 0.0 && wsum != 1.0 {
             // Some neighbours were invalid: the rest carry the whole weight.
             for o in out.iter_mut() {
@@ -452,12 +456,13 @@ impl Table {
         post: f64,
     ) {
         let c = self.channels.len();
-        let (wsum, tcont) = self.corners_masked(t_in, Interp::Linear, layout, mask, |flat, w| {
-            let m = pre(flat);
-            for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
-                *o += w * log.to_log(m * v as f64);
-            }
-        });
+        let Corners { wsum, tcont, .. } =
+            self.corners_masked(t_in, Interp::Linear, layout, mask, |flat, w| {
+                let m = pre(flat);
+                for (o, &v) in out.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
+                    *o += w * log.to_log(m * v as f64);
+                }
+            });
         if wsum > 0.0 {
             for o in out.iter_mut() {
                 *o = log.finish(*o, wsum, post);
@@ -484,7 +489,7 @@ impl Table {
         layout: &Layout,
         mask: &M,
         mut visit: impl FnMut(usize, f64),
-    ) -> (f64, [f64; 4]) {
+    ) -> Corners {
         let d = layout.d;
         let strides = &layout.strides;
         let nearest = interp == Interp::Nearest;
@@ -501,26 +506,26 @@ impl Table {
             tcont[k] = s.t;
         }
         let mut wsum = 0.0;
+        let mut listed = 0u16;
         for corner in 0..(1usize << d) {
-            let mut w = 1.0;
+            let w = corner_weight(&frac[..d], corner);
             let mut flat = 0;
             for k in 0..d {
-                let upper = corner >> k & 1 == 1;
-                let (i, wk) = if upper {
-                    (hi[k], frac[k])
-                } else {
-                    (lo[k], 1.0 - frac[k])
-                };
-                w *= wk;
-                flat += i * strides[k];
+                flat += if corner >> k & 1 == 1 { hi[k] } else { lo[k] } * strides[k];
             }
             if w == 0.0 || !mask.is_valid(flat) {
                 continue;
             }
             wsum += w;
+            listed |= 1 << corner;
             visit(flat, w);
         }
-        (wsum, tcont)
+        Corners {
+            wsum,
+            tcont,
+            frac,
+            listed,
+        }
     }
 
     /// The interpolation stencil of every pair of `pairs`: which cells [`Table::eval_into`]
@@ -530,7 +535,6 @@ impl Table {
     /// (directions → grid coordinates, atan2 and all) is worked out once here.
     pub fn stencil(&self, pairs: &[(Vec3, Vec3)], interp: Interp) -> Stencil {
         use rayon::prelude::*;
-        const CHUNK: usize = 4096;
         let layout = Layout::new(&self.grid);
         // Cells are stored as u32 (the field's comment); the grid's own limit keeps them there.
         assert!(
@@ -538,10 +542,19 @@ impl Table {
             "grid beyond MAX_CELLS"
         );
         let log = self.log_space(interp);
-        let parts: Vec<Stencil> = pairs
-            .par_chunks(CHUNK)
+        // Each part sized for every pair's 2^d neighbours, then shrunk to what it holds.
+        let neighbours = 1usize << layout.d;
+        let cosine = self.grid.weight() == InterpWeight::Cosine;
+        let parts: Vec<StencilPart> = pairs
+            .par_chunks(STENCIL_PART)
             .map(|pairs| {
-                let mut st = Stencil::default();
+                let mut st = StencilPart::with_capacity(
+                    pairs.len(),
+                    neighbours,
+                    layout.d,
+                    log.is_some(),
+                    cosine,
+                );
                 for &(wi, wo) in pairs {
                     if log.is_some() {
                         self.push_log_stencil(&mut st, wi, wo, &layout);
@@ -559,12 +572,20 @@ impl Table {
                         QueryWeight::Horizon => None,
                         _ => self.continuous_indices(wi, wo),
                     };
+                    let mut listed = (0u16, [0.0; 4]);
                     if let Some(t) = t {
-                        let (wsum, tcont) =
-                            self.corners_masked(&t, interp, &layout, &self.valid[..], |flat, w| {
-                                st.cells.push(flat as u32);
+                        let Corners {
+                            wsum,
+                            tcont,
+                            frac,
+                            listed: corners,
+                        } = self.corners_masked(&t, interp, &layout, &self.valid[..], |flat, w| {
+                            st.cells.push(flat as u32);
+                            if cosine {
                                 st.weights.push(weigh(flat, w));
-                            });
+                            }
+                        });
+                        listed = (corners, frac);
                         if wsum > 0.0 && wsum != 1.0 {
                             after = After::Divide(wsum);
                         } else if wsum == 0.0 {
@@ -574,8 +595,10 @@ impl Table {
                                     after = After::Hold(f)
                                 }
                                 // The held value, scaled: one neighbour with its weight
-                                // (0 + w·v is w·v, as eval_into computes it).
+                                // (0 + w·v is w·v, as eval_into computes it); a
+                                // cosine-weighted grid's, whose weights are listed.
                                 Some(f) => {
+                                    debug_assert!(cosine, "a query weight of a plain grid");
                                     st.cells.push(f as u32);
                                     st.weights.push(weigh(f, 1.0));
                                 }
@@ -583,42 +606,29 @@ impl Table {
                             }
                         }
                     }
-                    st.ends.push(st.cells.len());
-                    st.after.push(after);
+                    if !cosine {
+                        st.push_corners(listed.0, &listed.1[..layout.d]);
+                    }
+                    st.end_pair(after);
                 }
+                st.shrink_to_fit();
                 st
             })
             .collect();
-        // Sized once: grown by doubling, the arrays of a 4-D grid's estimation set (16
-        // neighbours a pair) were reallocated past twice their size at the planner's peak.
-        let total = |f: &dyn Fn(&Stencil) -> usize| parts.iter().map(f).sum::<usize>();
-        let mut st = Stencil {
+        Stencil {
             channels: self.channels.len(),
             cells_in_grid: self.grid.cells(),
+            d: layout.d,
+            pairs: pairs.len(),
             log,
-            ends: Vec::with_capacity(total(&|p| p.ends.len())),
-            cells: Vec::with_capacity(total(&|p| p.cells.len())),
-            weights: Vec::with_capacity(total(&|p| p.weights.len())),
-            after: Vec::with_capacity(total(&|p| p.after.len())),
-            pre: Vec::with_capacity(total(&|p| p.pre.len())),
-            post: Vec::with_capacity(total(&|p| p.post.len())),
-        };
-        for p in parts {
-            let base = st.cells.len();
-            st.ends.extend(p.ends.iter().map(|e| e + base));
-            st.cells.extend(p.cells);
-            st.weights.extend(p.weights);
-            st.after.extend(p.after);
-            st.pre.extend(p.pre);
-            st.post.extend(p.post);
+            parts,
         }
-        st
     }
 
     /// One pair's stencil on a log-space grid: the neighbours with their interpolation
     /// weights and cosine factors, the query's factor after the sum, and the fallback of
     /// [`Table::interpolate_log`].
-    fn push_log_stencil(&self, st: &mut Stencil, wi: Vec3, wo: Vec3, layout: &Layout) {
+    fn push_log_stencil(&self, st: &mut StencilPart, wi: Vec3, wo: Vec3, layout: &Layout) {
         let weight = self.query_weight(wi, wo);
         let (pre, post): (Option<&CellCosProducts>, f64) = match &weight {
             QueryWeight::Cosine { cells, inv_q } => (Some(cells), *inv_q),
@@ -626,7 +636,7 @@ impl Table {
         };
         // Only a cosine-weighted grid's neighbours have factors: on a plain grid every one
         // would be 1 (12 MB of ones for a 4-D grid's estimation and check sets).
-        let push_pre = |st: &mut Stencil, flat: usize| {
+        let push_pre = |st: &mut StencilPart, flat: usize| {
             if let Some(c) = pre {
                 st.pre.push(c.at(flat) as f32);
             }
@@ -636,27 +646,32 @@ impl Table {
             QueryWeight::Horizon => None,
             _ => self.continuous_indices(wi, wo),
         };
+        let mut listed = (0u16, [0.0; 4]);
         if let Some(t) = t {
-            let (wsum, tcont) =
-                self.corners_masked(&t, Interp::Linear, layout, &self.valid[..], |flat, w| {
-                    st.cells.push(flat as u32);
-                    st.weights.push(w);
-                    push_pre(st, flat);
-                });
+            let Corners {
+                wsum,
+                tcont,
+                frac,
+                listed: corners,
+            } = self.corners_masked(&t, Interp::Linear, layout, &self.valid[..], |flat, _| {
+                st.cells.push(flat as u32);
+                push_pre(st, flat);
+            });
+            listed = (corners, frac);
             if wsum > 0.0 {
                 after = After::Divide(wsum);
             } else {
                 let d = layout.d;
                 if let Some(f) = self.nearest_valid(&tcont[..d], &layout.strides[..d]) {
+                    // Not a corner: `Hold` reads it alone.
                     st.cells.push(f as u32);
-                    st.weights.push(1.0);
                     push_pre(st, f);
                     after = After::Hold(f);
                 }
             }
         }
-        st.ends.push(st.cells.len());
-        st.after.push(after);
+        st.push_corners(listed.0, &listed.1[..layout.d]);
+        st.end_pair(after);
         st.post.push(post);
     }
 
@@ -1401,29 +1416,146 @@ enum After {
     Hold(usize),
 }
 
+/// What [`Table::corners_masked`] found: the weight sum of the listed neighbours, the
+/// split's continuous indices (for the nearest-valid fallback), each axis's fraction and the
+/// corners listed (bit `corner`).
+struct Corners {
+    wsum: f64,
+    tcont: [f64; 4],
+    frac: [f64; 4],
+    listed: u16,
+}
+
+/// The interpolation weight of `corner` (bit k: the upper neighbour along axis k) from the
+/// axes' fractions: the product in axis order, the same bits wherever it is made.
+#[inline(always)]
+fn corner_weight(frac: &[f64], corner: usize) -> f64 {
+    let mut w = 1.0;
+    for (k, &f) in frac.iter().enumerate() {
+        w *= if corner >> k & 1 == 1 { f } else { 1.0 - f };
+    }
+    w
+}
+
 /// The interpolation stencils of a list of direction pairs on one grid and validity
-/// ([`Table::stencil`]).
+/// ([`Table::stencil`]), in parts of [`STENCIL_PART`] pairs: made in parallel a part at a
+/// time and kept as made (one array of every part's neighbours, made by concatenating them,
+/// held both copies at once: 25 MB more at the 64⁴ packs' peak), and applied a part at a time.
 #[derive(Clone, Debug, Default)]
 pub struct Stencil {
     channels: usize,
     cells_in_grid: usize,
+    /// Axes of the grid.
+    d: usize,
+    pairs: usize,
+    /// Log-space grids ([`InterpSpace::Log`]): the space, each neighbour's factor inside the
+    /// log (its cos θi·cos θo on cosine-weighted grids, else 1) and each pair's factor after
+    /// it; `Hold` then holds the pair's one listed cell. `None` otherwise.
+    log: Option<LogSpace>,
+    parts: Vec<StencilPart>,
+}
+
+/// Pairs in each part of a [`Stencil`] but the last.
+const STENCIL_PART: usize = 4096;
+
+/// The stencils of up to [`STENCIL_PART`] consecutive pairs.
+#[derive(Clone, Debug, Default)]
+struct StencilPart {
     /// Pair p's neighbours are `cells[ends[p-1]..ends[p]]`, with `weights` alongside.
-    ends: Vec<usize>,
+    ends: Vec<u32>,
     /// u32: a grid has at most [`crate::grid::MAX_CELLS`] (2³¹) cells, and the estimation
     /// sets hold millions of neighbours, so half the bytes of usize count.
     cells: Vec<u32>,
+    /// Each neighbour's weight: cosine-weighted grids in the linear space only, where it
+    /// depends on the neighbour's cell ([`InterpWeight::Cosine`]).
     weights: Vec<f64>,
+    /// Otherwise each pair's d axis fractions and the corners it lists (bit `corner`, in
+    /// corner order): a neighbour's weight is the product [`corner_weight`] makes again, the
+    /// bits [`Table::corners_masked`] gave (d values a pair, not 2^d).
+    fracs: Vec<f64>,
+    corners: Vec<u16>,
     after: Vec<After>,
-    /// Log-space grids ([`InterpSpace::Log`]): the space, each neighbour's factor inside the
-    /// log (its cos θi·cos θo on cosine-weighted grids, else 1) and each pair's factor after
-    /// it; `Hold` then holds the pair's one listed cell. Empty otherwise, and `pre` is empty
-    /// on a log-space grid without the cosine weight (every factor 1).
-    log: Option<LogSpace>,
+    /// Log-space grids: each neighbour's factor inside the log (empty on a grid without the
+    /// cosine weight: every factor 1) and each pair's factor after it.
     pre: Vec<f32>,
     post: Vec<f64>,
 }
 
-impl Stencil {
+impl StencilPart {
+    /// A part for `pairs` pairs of up to `neighbours` neighbours each, sized once (grown by
+    /// doubling, a 4-D grid's arrays reached twice their size).
+    /// A part of a grid of `d` axes, with the cosine weight or not, in the log space or not.
+    fn with_capacity(
+        pairs: usize,
+        neighbours: usize,
+        d: usize,
+        log: bool,
+        cosine: bool,
+    ) -> StencilPart {
+        let listed = log || !cosine;
+        StencilPart {
+            ends: Vec::with_capacity(pairs),
+            cells: Vec::with_capacity(pairs * neighbours),
+            weights: Vec::with_capacity(if listed { 0 } else { pairs * neighbours }),
+            fracs: Vec::with_capacity(if listed { pairs * d } else { 0 }),
+            corners: Vec::with_capacity(if listed { pairs } else { 0 }),
+            after: Vec::with_capacity(pairs),
+            pre: Vec::with_capacity(if log && cosine { pairs * neighbours } else { 0 }),
+            post: Vec::with_capacity(if log { pairs } else { 0 }),
+        }
+    }
+
+    /// The current pair's corners listed and axis fractions (every pair of a part whose
+    /// weights are products, listed or not).
+    fn push_corners(&mut self, listed: u16, frac: &[f64]) {
+        self.corners.push(listed);
+        self.fracs.extend_from_slice(frac);
+    }
+
+    /// Each neighbour of local pair p on a grid of `d` axes: (its index in the part, its
+    /// cell, its weight), in the order listed.
+    #[inline(always)]
+    fn for_each_neighbour(&self, d: usize, p: usize, mut f: impl FnMut(usize, u32, f64)) {
+        let range = self.range(p);
+        if self.corners.is_empty() {
+            for k in range {
+                f(k, self.cells[k], self.weights[k]);
+            }
+        } else {
+            let frac = &self.fracs[p * d..(p + 1) * d];
+            let mut rest = self.corners[p];
+            for k in range {
+                let corner = rest.trailing_zeros() as usize;
+                rest &= rest.wrapping_sub(1);
+                f(k, self.cells[k], corner_weight(frac, corner));
+            }
+        }
+    }
+
+    /// Ends the current pair (its neighbours pushed).
+    fn end_pair(&mut self, after: After) {
+        self.ends.push(self.cells.len() as u32);
+        self.after.push(after);
+    }
+
+    fn shrink_to_fit(&mut self) {
+        self.ends.shrink_to_fit();
+        self.cells.shrink_to_fit();
+        self.weights.shrink_to_fit();
+        self.fracs.shrink_to_fit();
+        self.corners.shrink_to_fit();
+        self.after.shrink_to_fit();
+        self.pre.shrink_to_fit();
+        self.post.shrink_to_fit();
+    }
+
+    /// The neighbours of local pair p.
+    #[inline]
+    fn range(&self, p: usize) -> std::ops::Range<usize> {
+        let start = if p == 0 { 0 } else { self.ends[p - 1] as usize };
+        start..self.ends[p] as usize
+    }
+
     /// Neighbour k's factor inside the log (1 when the grid has no cosine weight).
     #[inline]
     fn pre_at(&self, k: usize) -> f64 {
@@ -1433,29 +1565,44 @@ impl Stencil {
             self.pre[k] as f64
         }
     }
+}
 
+impl Stencil {
     /// Pairs covered.
     pub fn len(&self) -> usize {
-        self.ends.len()
+        self.pairs
     }
 
     pub fn is_empty(&self) -> bool {
-        self.ends.is_empty()
+        self.pairs == 0
     }
 
     /// The first cell pair `p` reads (its lowest neighbour; the held cell when every
     /// neighbour is invalid; `usize::MAX` when it reads none): a sort key that puts pairs
     /// reading nearby cells next to each other.
     pub fn first_cell(&self, p: usize) -> usize {
-        let start = if p == 0 { 0 } else { self.ends[p - 1] };
-        match self.after[p] {
+        let part = &self.parts[p / STENCIL_PART];
+        let p = p % STENCIL_PART;
+        match part.after[p] {
             After::Hold(flat) => flat,
-            _ => self.cells[start..self.ends[p]]
+            _ => part.cells[part.range(p)]
                 .iter()
                 .map(|&f| f as usize)
                 .min()
                 .unwrap_or(usize::MAX),
         }
+    }
+
+    /// Every cell the stencils read (their neighbours and held cells), in no particular
+    /// order and possibly repeated.
+    pub fn cells_read(&self) -> impl Iterator<Item = u32> + '_ {
+        self.parts.iter().flat_map(|part| {
+            let held = part.after.iter().filter_map(|a| match a {
+                After::Hold(flat) => Some(*flat as u32),
+                _ => None,
+            });
+            part.cells.iter().copied().chain(held)
+        })
     }
 
     /// The values of a table with these stencils' grid, validity and channel count holding
@@ -1464,35 +1611,53 @@ impl Stencil {
     /// # Panics
     /// When `data` or `out` has the wrong length (a caller bug).
     pub fn apply(&self, data: &[f32], out: &mut [f64]) {
-        use rayon::prelude::*;
-        let c = self.channels;
         assert_eq!(
             data.len(),
-            self.cells_in_grid * c,
+            self.cells_in_grid * self.channels,
             "Stencil::apply: data length"
         );
+        self.apply_with(data, out, |f| f);
+    }
+
+    /// [`Stencil::apply`] of a table given by the values of some of its cells alone (every
+    /// cell these stencils read among them, [`Stencil::cells_read`]): `values[position(f)·C..]`
+    /// holds cell f's. The same bits as `apply` on the whole table (the same values, summed in
+    /// the same order): what lets a measurement decode only the cells it reads.
+    ///
+    /// # Panics
+    /// When `position` gives a place outside `values` or `out` has the wrong length (a caller
+    /// bug).
+    pub fn apply_at_cells(
+        &self,
+        values: &[f32],
+        out: &mut [f64],
+        position: impl Fn(u32) -> u32 + Sync,
+    ) {
+        self.apply_with(values, out, position);
+    }
+
+    #[inline(always)]
+    fn apply_with(&self, data: &[f32], out: &mut [f64], position: impl Fn(u32) -> u32 + Sync) {
+        use rayon::prelude::*;
+        let c = self.channels;
         assert_eq!(out.len(), self.len() * c, "Stencil::apply: output length");
-        const CHUNK: usize = 4096;
-        out.par_chunks_mut(CHUNK * c)
-            .enumerate()
-            .for_each(|(k, out)| {
-                for (j, o) in out.chunks_exact_mut(c).enumerate() {
-                    let p = k * CHUNK + j;
-                    let start = if p == 0 { 0 } else { self.ends[p - 1] };
-                    let end = self.ends[p];
+        out.par_chunks_mut(STENCIL_PART * c)
+            .zip(&self.parts)
+            .for_each(|(out, part)| {
+                for (p, o) in out.chunks_exact_mut(c).enumerate() {
+                    let range = part.range(p);
                     if let Some(log) = self.log {
-                        self.apply_log(log, p, start..end, data, o);
+                        self.apply_log(log, part, p, range, data, o, &position);
                         continue;
                     }
                     o.fill(0.0);
-                    for (&flat, &w) in self.cells[start..end].iter().zip(&self.weights[start..end])
-                    {
-                        let flat = flat as usize;
+                    part.for_each_neighbour(self.d, p, |_, flat, w| {
+                        let flat = position(flat) as usize;
                         for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                             *o += w * v as f64;
                         }
-                    }
-                    match self.after[p] {
+                    });
+                    match part.after[p] {
                         After::None => {}
                         After::Divide(wsum) => {
                             for o in o.iter_mut() {
@@ -1500,6 +1665,7 @@ impl Stencil {
                             }
                         }
                         After::Hold(flat) => {
+                            let flat = position(flat as u32) as usize;
                             for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                                 *o = v as f64;
                             }
@@ -1508,36 +1674,40 @@ impl Stencil {
                 }
             });
     }
-}
 
-impl Stencil {
     /// One pair of a log-space stencil: [`Table::interpolate_log`]'s operations in its order.
+    #[allow(clippy::too_many_arguments)] // the pair, its part and the values.
     #[inline(always)]
     fn apply_log(
         &self,
         log: LogSpace,
+        part: &StencilPart,
         p: usize,
         range: std::ops::Range<usize>,
         data: &[f32],
         o: &mut [f64],
+        position: &impl Fn(u32) -> u32,
     ) {
         let c = self.channels;
-        let post = self.post[p];
+        let post = part.post[p];
         o.fill(0.0);
-        if let After::Hold(_) = self.after[p] {
-            let (flat, m) = (self.cells[range.start] as usize, self.pre_at(range.start));
+        if let After::Hold(_) = part.after[p] {
+            let (flat, m) = (
+                position(part.cells[range.start]) as usize,
+                part.pre_at(range.start),
+            );
             for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                 *o = post * (m * v as f64);
             }
             return;
         }
-        for k in range {
-            let (flat, w, m) = (self.cells[k] as usize, self.weights[k], self.pre_at(k));
+        part.for_each_neighbour(self.d, p, |k, flat, w| {
+            let (flat, m) = (position(flat) as usize, part.pre_at(k));
             for (o, &v) in o.iter_mut().zip(&data[flat * c..(flat + 1) * c]) {
                 *o += w * log.to_log(m * v as f64);
             }
-        }
-        if let After::Divide(wsum) = self.after[p] {
+        });
+        if let After::Divide(wsum) = part.after[p] {
             for o in o.iter_mut() {
                 *o = log.finish(*o, wsum, post);
             }

@@ -66,6 +66,46 @@ pub fn filled_planes_f32(table: &Table, transform: &Transform) -> Vec<Vec<f32>> 
     planes
 }
 
+/// [`filled_planes_f32`] of a one-channel table in its own samples' memory: `samples` are
+/// the table's (taken out with `Table::lend_samples`; `table` gives the grid and validity),
+/// each replaced by its transformed value and the invalid cells filled. The same bits as the
+/// plane `filled_planes_f32` makes beside them, without a second table-sized array.
+///
+/// # Panics
+/// When the table has more than one channel or `samples` is not its size (a caller bug).
+pub fn filled_plane_f32_in_place(
+    table: &Table,
+    transform: &Transform,
+    mut samples: Vec<f32>,
+) -> Vec<f32> {
+    use rayon::prelude::*;
+    const CHUNK: usize = 1 << 14;
+    assert_eq!(table.channels().len(), 1, "one channel");
+    assert_eq!(samples.len(), table.grid().cells(), "the table's samples");
+    let weights = transform.cell_weights(table.grid(), table.valid());
+    samples.par_chunks_mut(CHUNK).enumerate().for_each_init(
+        || ([0.0], [0.0]),
+        |(y, z), (i, chunk)| {
+            for (j, v) in chunk.iter_mut().enumerate() {
+                let f = i * CHUNK + j;
+                let wf = weights.as_ref().map_or(1.0, |w| w.at(f));
+                transform.forward_cell(&[*v], wf, y, z);
+                *v = z[0] as f32;
+            }
+        },
+    );
+    let dims = table.grid().shape();
+    let mut planes = [samples];
+    domain::fill_invalid(
+        &mut planes,
+        &dims,
+        table.valid(),
+        &fill_order(table.grid().kind()),
+    );
+    let [plane] = planes;
+    plane
+}
+
 /// `planes[i]` = component `component(i)` of every cell's transform (curve, weight, colour),
 /// the values [`Transform::for_each_cell`] visits. Each cell's transform is its own: made in
 /// parallel chunks (their logs were most of a 64⁴ RGB plane's time on one core).

@@ -12,6 +12,7 @@
 
 use super::Layout;
 use super::transform::{Curve, Transform, signed_log_inverse_f32};
+use crate::table::CellSet;
 
 // The CPU-feature detector and the portable/AVX2 dispatch are the crate's one pair
 // (`crate::simd`).
@@ -312,6 +313,49 @@ impl Finisher {
     }
 
     #[inline(always)]
+    /// [`Finisher::run`] of the cells of a set only, in place: `out[i·C + k]` holds component
+    /// k of the set's cell at place i ([`CellSet`]; flat indices into the layout, whose
+    /// validity is `valid`) and becomes its finished channel k. Each cell is finished on its
+    /// own, so the same bits as the whole decode.
+    pub(crate) fn run_cells<const C: usize>(
+        &self,
+        cells: &CellSet,
+        valid: &[bool],
+        out: &mut [f32],
+    ) {
+        debug_assert_eq!(self.c, C);
+        debug_assert_eq!(out.len(), cells.len() * C);
+        let (mm, ee) = self.constants::<C>();
+        let mut flats = cells.iter();
+        for out in out.chunks_mut(LANES * C) {
+            let n = out.len() / C;
+            let mut block = [0u32; LANES];
+            for (b, f) in block[..n].iter_mut().zip(&mut flats) {
+                *b = f;
+            }
+            let mut z = [[0f32; LANES]; C];
+            for l in 0..n {
+                for k in 0..C {
+                    z[k][l] = out[l * C + k];
+                }
+            }
+            let mut y = self.block::<C>(&mm, &ee, z);
+            if let Some(r) = self.rw.as_deref() {
+                for k in 0..C {
+                    for (l, &f) in block[..n].iter().enumerate() {
+                        y[k][l] = scale_finite(y[k][l], r[f as usize]);
+                    }
+                }
+            }
+            for (l, &f) in block[..n].iter().enumerate() {
+                let ok = valid[f as usize];
+                for k in 0..C {
+                    out[l * C + k] = if ok { y[k][l] } else { 0.0 };
+                }
+            }
+        }
+    }
+
     pub(crate) fn run<const C: usize>(
         &self,
         planes: [&[f32]; C],
@@ -1007,6 +1051,59 @@ mod tests {
                 }
                 for (i, (a, b)) in together.iter().zip(&alone).enumerate() {
                     assert_eq!(a.to_bits(), b.to_bits(), "c {c}, cells {cells}, value {i}");
+                }
+            }
+        }
+    }
+
+    /// Finishing a set's cells in place (`run_cells`) gives each cell the bits the whole
+    /// run gives it: 1 and 3 components, with and without 1/w weights, portable or not, sets
+    /// smaller and larger than a block.
+    #[test]
+    fn listed_cells_finish_as_the_whole_run() {
+        let mut rng = crate::math::SplitMix64::new(41);
+        for c in [1, 3] {
+            let cells = 203;
+            let planes: Vec<Vec<f32>> = (0..c)
+                .map(|_| (0..cells).map(|_| plane_value(&mut rng)).collect())
+                .collect();
+            let valid: Vec<bool> = (0..cells)
+                .map(|_| !rng.next_u64().is_multiple_of(5))
+                .collect();
+            let weights: Vec<f32> = (0..cells)
+                .map(|_| (rng.next_f64() * 40.0 + 0.5) as f32)
+                .collect();
+            let listed: Vec<u32> = (0..cells as u32)
+                .filter(|_| rng.next_u64().is_multiple_of(3))
+                .collect();
+            for weighted in [false, true] {
+                for portable in [false, true] {
+                    let mut fin = Finisher::example(c).clone_portable(portable);
+                    fin.rw = weighted.then(|| weights.clone());
+                    let mut whole = vec![f32::NAN; cells * c];
+                    let views: Vec<&[f32]> = planes.iter().map(|p| p.as_slice()).collect();
+                    finish(&fin, &views, &valid, &mut whole);
+                    for list in [&listed[..], &listed[..5], &[]] {
+                        let set = CellSet::new(cells, list.iter().copied());
+                        let mut got: Vec<f32> = list
+                            .iter()
+                            .flat_map(|&f| planes.iter().map(move |p| p[f as usize]))
+                            .collect();
+                        if c == 3 {
+                            fin.run_cells::<3>(&set, &valid, &mut got);
+                        } else {
+                            fin.run_cells::<1>(&set, &valid, &mut got);
+                        }
+                        for (i, &f) in list.iter().enumerate() {
+                            for k in 0..c {
+                                assert_eq!(
+                                    got[i * c + k].to_bits(),
+                                    whole[f as usize * c + k].to_bits(),
+                                    "c {c}, weighted {weighted}, portable {portable}, cell {f}"
+                                );
+                            }
+                        }
+                    }
                 }
             }
         }

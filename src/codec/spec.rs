@@ -516,6 +516,68 @@ impl CodecSpec {
         self.decode_into_with(payload, layout, out, &mut DecodeScratch::lean())
     }
 
+    /// Whether [`CodecSpec::decode_cells`] decodes this chain on a table of `channels`
+    /// channels: the DCT chains without a residual, of 1 or 3 channels.
+    pub fn decodes_cells(&self, channels: usize) -> bool {
+        matches!(self, CodecSpec::Dct { .. } | CodecSpec::DctContext { .. })
+            && self.residual().is_none()
+            && (channels == 1 || channels == 3)
+    }
+
+    /// The decoded values of a set's cells alone (`out[i·C + k]` is channel k of the cell at
+    /// place i, [`CellSet`]), the same bits as [`CodecSpec::decode_into`] gives them, without
+    /// an array of the table's size: what a measurement at a few million pairs of a 64⁴ table
+    /// needs. Only for the chains [`CodecSpec::decodes_cells`] accepts.
+    pub fn decode_cells(
+        &self,
+        payload: &[u8],
+        layout: &Layout,
+        cells: &crate::table::CellSet,
+        out: &mut [f32],
+    ) -> Result<()> {
+        self.validate(layout)?;
+        let c = layout.channels;
+        if !self.decodes_cells(c) {
+            return Err(Error::Failure(format!(
+                "decode_cells: not a DCT chain of 1 or 3 channels without a residual ({c} channels)"
+            )));
+        }
+        let dims = layout.dims();
+        let grid_cells: usize = dims.iter().product();
+        if out.len() != cells.len() * c || cells.grid_cells() != grid_cells {
+            return Err(Error::Failure(
+                "decode_cells: the set is of another grid, or the output is not its size"
+                    .to_string(),
+            ));
+        }
+        let scratch = &mut DecodeScratch::lean();
+        let (mut comps, transform, steps) = match self {
+            CodecSpec::Dct {
+                transform,
+                dct: stage,
+                entropy,
+                ..
+            } => {
+                let raw = entropy.decompress_capped(payload, dct_stream_cap(layout)?)?;
+                (dct::deserialize(&raw, &dims, c)?, transform, &stage.step)
+            }
+            CodecSpec::DctContext {
+                transform,
+                dct: stage,
+                coding,
+                ..
+            } => (
+                coefcode::decode_with(payload, &dims, c, coding.model, scratch)?,
+                transform,
+                &stage.step,
+            ),
+            _ => unreachable!("decodes_cells accepted the chain"),
+        };
+        let fin = simd::Finisher::new(transform, layout);
+        idct::decode_cells(&mut comps, steps, &dims, &fin, layout.valid, cells, out);
+        Ok(())
+    }
+
     /// As [`CodecSpec::decode_into`], with the decoder's working arrays kept in `scratch`
     /// between calls: a loader decoding many tables of one size then also skips mapping,
     /// faulting in and zeroing the coefficient boxes and pass arrays (~25 MB for the

@@ -32,7 +32,7 @@ use crate::check::{
 };
 use crate::geometry::Vec3;
 use crate::grid::Grid;
-use crate::table::{Interp, Stencil, Table};
+use crate::table::{CellSet, Interp, Stencil, Table};
 use crate::{Error, Result};
 use rayon::prelude::*;
 
@@ -63,6 +63,12 @@ pub struct ErrorEstimator {
     reference: Vec<f64>,
     stencil: Stencil,
     check: Option<Scored>,
+    /// Every cell the stencils of both sets read: a measurement needs the values of these
+    /// cells only ([`ErrorEstimator::measure_cells`]). Made when first asked for (the
+    /// planner compares estimators by measuring whole tables, where it is not needed).
+    read: std::sync::OnceLock<CellSet>,
+    /// Cells of the grid ([`ErrorEstimator::measure`] checks its data against it).
+    grid_cells: usize,
     channels: usize,
     epsilon: f64,
     /// ε of the relative metrics on a set of `for_samples` pairs with fewer bright pairs than
@@ -202,46 +208,62 @@ impl Scored {
     /// otherwise the order comes from those stencils and they are made again.
     fn new(table: &Table, reference: &ReferenceSet, hint: Option<&[u32]>) -> Scored {
         let c = reference.channels;
-        let set = reference.set();
-        debug_assert!(set.weights.is_none(), "uniform draws have equal weights");
+        // The pairs in the order `order` gives, the set drawn again for each use rather than
+        // held beside them (48 B a pair: 6 MB for the estimation set).
         let reordered = |order: &[u32]| -> Vec<(Vec3, Vec3)> {
+            let set = reference.set();
+            debug_assert!(set.weights.is_none(), "uniform draws have equal weights");
             order.iter().map(|&p| set.pairs[p as usize]).collect()
         };
         // A set holds at most MAX_SAMPLES (< 2³²) pairs.
-        let (stencil, unordered) = match hint.filter(|h| h.len() == set.pairs.len()) {
-            Some(h) => (table.stencil(&reordered(h), Interp::Linear), h.to_vec()),
-            None => (
-                table.stencil(&set.pairs, Interp::Linear),
-                (0..set.pairs.len() as u32).collect(),
-            ),
+        let (stencil, unordered, pairs) = match hint.filter(|h| h.len() == reference.len) {
+            Some(h) => {
+                let pairs = reordered(h);
+                (
+                    table.stencil(&pairs, Interp::Linear),
+                    h.to_vec(),
+                    Some(pairs),
+                )
+            }
+            None => {
+                let set = reference.set();
+                (
+                    table.stencil(&set.pairs, Interp::Linear),
+                    (0..set.pairs.len() as u32).collect(),
+                    None,
+                )
+            }
         };
         // `unordered[i]` is the pair of stencil i.
         let key = |i: usize| (stencil.first_cell(i), unordered[i]);
-        let (order, stencil) = if hint.is_some() && (1..stencil.len()).all(|i| key(i - 1) < key(i))
-        {
-            (unordered, stencil)
-        } else {
-            // (cell, pair) is unique, so any sort gives this order; the unstable one needs
-            // no buffer (this is the high-water mark of `compress`, below).
-            let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
-            order.sort_unstable_by_key(|&i| key(i as usize));
-            // Stencil positions to pairs, in place.
-            for i in order.iter_mut() {
-                *i = unordered[*i as usize];
+        let (order, stencil, pairs) = match pairs {
+            Some(pairs) if (1..stencil.len()).all(|i| key(i - 1) < key(i)) => {
+                (unordered, stencil, pairs)
             }
-            drop(unordered);
-            // The stencils again, of the pairs in their new order, rather than a reordered
-            // copy: a pair's stencil depends on that pair alone (`Table::stencil`; tested in
-            // `table::tests`), and the set's two stencils are not held at once (12.5 MB each
-            // for the estimation set on the 52 MiB table of docs/robustness.md: the
-            // high-water mark of `compress` was reached here).
-            drop(stencil);
-            let stencil = table.stencil(&reordered(&order), Interp::Linear);
-            (order, stencil)
+            _ => {
+                // (cell, pair) is unique, so any sort gives this order; the unstable one
+                // needs no buffer (this is the high-water mark of `compress`, below).
+                let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
+                order.sort_unstable_by_key(|&i| key(i as usize));
+                // Stencil positions to pairs, in place.
+                for i in order.iter_mut() {
+                    *i = unordered[*i as usize];
+                }
+                drop(unordered);
+                // The stencils again, of the pairs in their new order, rather than a
+                // reordered copy: a pair's stencil depends on that pair alone
+                // (`Table::stencil`; tested in `table::tests`), and the set's two stencils are
+                // not held at once (12.5 MB each for the estimation set on the 52 MiB table
+                // of docs/robustness.md: the high-water mark of `compress` was reached here).
+                drop(stencil);
+                let pairs = reordered(&order);
+                let stencil = table.stencil(&pairs, Interp::Linear);
+                (order, stencil, pairs)
+            }
         };
-        let cos_i = order.iter().map(|&p| set.pairs[p as usize].0.z).collect();
-        let cos_o = order.iter().map(|&p| set.pairs[p as usize].1.z).collect();
-        drop(set);
+        let cos_i = pairs.iter().map(|p| p.0.z).collect();
+        let cos_o = pairs.iter().map(|p| p.1.z).collect();
+        drop(pairs);
         let mut values = Vec::with_capacity(reference.values.len());
         for &p in &order {
             let p = p as usize;
@@ -257,13 +279,6 @@ impl Scored {
             stencil,
             reference: values,
         }
-    }
-
-    /// The interpolated values of `data` at the pairs.
-    fn values(&self, data: &[f32], c: usize) -> Vec<f64> {
-        let mut g = vec![0.0; self.pairs.count() * c];
-        self.stencil.apply(data, &mut g);
-        g
     }
 }
 
@@ -428,6 +443,27 @@ impl ErrorEstimator {
         Self::build(table, reference, check, for_samples, Some(previous))
     }
 
+    /// Adds the check set `check` (on `table`, the estimator's grid and validity; an
+    /// estimator made without one), its pairs tried first in `hint`'s order (the check set's
+    /// order in an estimator of the same grid): the estimator `new` would have made with it.
+    pub fn add_check(
+        &mut self,
+        table: &Table,
+        check: &ReferenceSet,
+        hint: Option<&[u32]>,
+    ) -> Result<()> {
+        if check.channels != self.channels {
+            return Err(Error::input(format!(
+                "error estimate: the source has {} channels, the table {}",
+                check.channels, self.channels
+            )));
+        }
+        let scored = Scored::new(table, check, hint);
+        self.check = Some(scored);
+        self.read = std::sync::OnceLock::new();
+        Ok(())
+    }
+
     fn build(
         table: &Table,
         reference: &ReferenceSet,
@@ -452,11 +488,14 @@ impl ErrorEstimator {
         let check_hint = previous
             .and_then(|p| p.check.as_ref())
             .map(|s| &s.pairs.index[..]);
+        let check = check.map(|r| Scored::new(table, r, check_hint));
         Ok(ErrorEstimator {
             pairs,
             stencil,
             reference: values,
-            check: check.map(|r| Scored::new(table, r, check_hint)),
+            check,
+            read: std::sync::OnceLock::new(),
+            grid_cells: table.grid().cells(),
             channels: c,
             epsilon: reference.epsilon(),
             epsilon_low: reference.epsilon_low(for_samples.max(1)),
@@ -486,17 +525,58 @@ impl ErrorEstimator {
         (&self.pairs.cos_i, &self.pairs.cos_o, &self.reference)
     }
 
+    /// The cells a measurement reads: [`ErrorEstimator::measure_cells`] takes their values
+    /// alone.
+    pub fn cells(&self) -> &CellSet {
+        self.read.get_or_init(|| {
+            CellSet::read_by(
+                self.grid_cells,
+                std::iter::once(&self.stencil).chain(self.check.as_ref().map(|s| &s.stencil)),
+            )
+        })
+    }
+
     /// The error of `data` (cell-major values on the estimator's grid and validity, linearly
     /// interpolated) against the source.
+    ///
+    /// # Panics
+    /// When `data` is not a table's values on the estimator's grid (a caller bug).
     pub fn measure(&self, data: &[f32]) -> Estimate {
+        assert_eq!(
+            data.len(),
+            self.grid_cells * self.channels,
+            "ErrorEstimator::measure: data length"
+        );
+        self.measure_by(|s, g| s.apply(data, g))
+    }
+
+    /// [`ErrorEstimator::measure`] of a table given by the values of
+    /// [`ErrorEstimator::cells`] alone (`values[i·C..]` those of the cell at place i): the
+    /// same bits.
+    ///
+    /// # Panics
+    /// When `values` is not the listed cells' size (a caller bug).
+    pub fn measure_cells(&self, values: &[f32]) -> Estimate {
+        assert_eq!(
+            values.len(),
+            self.cells().len() * self.channels,
+            "ErrorEstimator::measure_cells: values length"
+        );
+        let read = self.cells();
+        self.measure_by(|s, g| s.apply_at_cells(values, g, |f| read.position(f)))
+    }
+
+    /// The estimate from the interpolated values `apply` gives of each set's stencils.
+    fn measure_by(&self, apply: impl Fn(&Stencil, &mut [f64])) -> Estimate {
         let c = self.channels;
         let n = self.pairs.count();
         let mut g = vec![0.0; n * c];
-        self.stencil.apply(data, &mut g);
+        apply(&self.stencil, &mut g);
         let point = metrics_of(&self.pairs, &self.reference, &g, c, None);
         let eps_low = self.epsilon_low.min(point.epsilon);
         let check = self.check.as_ref().map(|s| {
-            let g = s.values(data, c);
+            let mut g = vec![0.0; s.pairs.count() * c];
+            apply(&s.stencil, &mut g);
             metrics_of(&s.pairs, &s.reference, &g, c, None)
         });
         // Per pair: squared errors averaged over channels (abs, rel, log) and whether the pair

@@ -30,7 +30,7 @@ use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
-    filled_planes_f32, transform_with_curve,
+    filled_plane_f32_in_place, filled_planes_f32, transform_with_curve,
 };
 use crate::simd::dispatch;
 use crate::table::Table;
@@ -184,14 +184,16 @@ pub fn encode_within(
     encode(Access::Shared(table), None, est, budget, effort, progress)
 }
 
-/// [`encode_within`] without a decode buffer of its own: once the coefficients are made,
-/// the table lends its samples' memory to the decoded candidates (at the default and fast
-/// efforts, where one transform serves every variant; `max` keeps them). On return the table
-/// holds what the chosen file decodes to: the decode of the lossy candidate, or for the
-/// lossless chain the samples `again` gives (checked against a fingerprint of the original
-/// ones). A table-sized array less at the peak: 50 MB of the 52 MiB table of
-/// docs/robustness.md. On an error the table's samples are unspecified (finite, 0 at invalid
-/// cells).
+/// [`encode_within`] with the table's samples lent (at the default and fast efforts, where
+/// one transform serves every variant; `max` keeps them): once the coefficients are made
+/// the samples are not needed until the end, so they are freed (tables of 1 or 3 channels,
+/// whose candidates are decoded at the estimator's cells alone), or hold the decoded
+/// candidates (other channel counts); a one-channel plane made in f32 is made in them. On
+/// return the table holds what the chosen file decodes to: the decode of the lossy
+/// candidate, or for the lossless chain the samples `again` gives (checked against a
+/// fingerprint of the original ones). A table-sized array less at the peak: 50 MB of the
+/// 52 MiB table of docs/robustness.md. On an error the table's samples are unspecified
+/// (finite, 0 at invalid cells).
 ///
 /// `prepared`, when given, holds the coefficients [`prepare_coefficients`] made from this
 /// table before the estimator was built (so that its stencils were not held beside the
@@ -354,19 +356,41 @@ fn encode(
         let seconds_before = made.as_ref().map_or(0.0, |p| p.seconds);
         let (transform, coefs, max_coef) = match made {
             Some(p) => (p.transform, p.coefs, p.max_coef),
-            None => transform_and_coefficients(
-                access.table(),
-                est.epsilon(),
-                scale,
-                has_negative,
-                progress,
-            ),
+            None => match &mut access {
+                // Lent samples read once: the plane is made in their memory.
+                Access::Lend(t, _) if lend && plane_in_samples(t) => {
+                    transform_and_coefficients_in_samples(
+                        t,
+                        est.epsilon(),
+                        scale,
+                        has_negative,
+                        progress,
+                    )
+                }
+                _ => transform_and_coefficients(
+                    access.table(),
+                    est.epsilon(),
+                    scale,
+                    has_negative,
+                    progress,
+                ),
+            },
         };
+        // Candidates of 1 or 3 channels are decoded at the estimator's cells alone
+        // ([`CodecSpec::decode_cells`]): no decode buffer, and lent samples are freed
+        // (the chosen file's decode is given back at the end).
         if decoded.is_empty() {
-            decoded = match (&mut access, lend) {
-                (Access::Lend(t, _), true) => t.lend_samples(),
-                _ => vec![0f32; values],
-            };
+            let cells_only = matches!(access.table().channels().len(), 1 | 3);
+            match (&mut access, lend) {
+                (Access::Lend(t, _), true) => {
+                    let samples = t.lend_samples();
+                    if !cells_only {
+                        decoded = samples;
+                    }
+                }
+                _ if cells_only => {}
+                _ => decoded = vec![0f32; values],
+            }
         }
         timings.push((
             format!("transform + DCT (ε×{scale})"),
@@ -414,6 +438,9 @@ fn encode(
         match &best {
             // The chosen file's decode: the last candidate decoded may be another one.
             Some((spec, payload, _)) => {
+                // Freed for the candidates' decodes at cells: made again now that the
+                // coefficients are gone.
+                decoded.resize(values, 0.0);
                 let decodes = spec.decode_into_with(
                     payload,
                     &Layout::of(t),
@@ -485,22 +512,9 @@ fn transform_and_coefficients(
     has_negative: bool,
     progress: Progress,
 ) -> (Transform, Vec<Vec<f32>>, f64) {
-    let c = table.channels().len();
-    progress("transforming (log curve, colour)");
-    let eps = (scale * epsilon).max(f64::MIN_POSITIVE);
-    // A table with negative values (a noisy measured fit) keeps their sign: the metrics
-    // compare them with the source's like any other value, and the log curve would decode
-    // them as 0 (a relative error of 1 at each).
-    let curve = if has_negative {
-        Curve::SignedLog { eps: vec![eps; c] }
-    } else {
-        Curve::Log { eps: vec![eps; c] }
-    };
-    let transform = transform_with_curve(table, curve, true, None);
-    // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid) and
-    // the estimator's construction are freed: handed back before the DCT's planes.
-    crate::memory::release_free_memory();
+    let transform = curve_transform(table, epsilon, scale, has_negative, progress);
     progress("forward DCT");
+    let c = table.channels().len();
     let dims = table.grid().shape();
     // The coefficients are kept in f32 for the rate control (half the memory: 17.5 MB
     // instead of 35 MB on the MERL grid): the quantizer widens each back to f64 exactly, so
@@ -533,6 +547,60 @@ fn transform_and_coefficients(
         })
         .collect();
     (transform, coefs, max_coef)
+}
+
+/// Whether [`transform_and_coefficients_in_samples`] serves `table`: one channel, and a plane
+/// made in f32 ([`F32_PLANE_CELLS`]).
+fn plane_in_samples(table: &Table) -> bool {
+    table.channels().len() == 1 && table.grid().cells() > F32_PLANE_CELLS
+}
+
+/// [`transform_and_coefficients`] of a table whose samples it may take: the plane is made and
+/// transformed in the samples' own memory ([`filled_plane_f32_in_place`]), so the table and
+/// a plane of its size are never held together (a 64⁴ table's 67 MB). The same bits; the
+/// table is left without samples (lent, [`encode_within_lending`]).
+fn transform_and_coefficients_in_samples(
+    table: &mut Table,
+    epsilon: f64,
+    scale: f64,
+    has_negative: bool,
+    progress: Progress,
+) -> (Transform, Vec<Vec<f32>>, f64) {
+    debug_assert!(plane_in_samples(table));
+    let transform = curve_transform(table, epsilon, scale, has_negative, progress);
+    progress("forward DCT");
+    let dims = table.grid().shape();
+    let samples = table.lend_samples();
+    let plane = filled_plane_f32_in_place(table, &transform, samples);
+    let f = dct::forward_owned_f32(plane, &dims);
+    let max_coef = f.iter().fold(0.0f64, |m, c| m.max(c.abs() as f64));
+    (transform, vec![f], max_coef)
+}
+
+/// The curve (and colour) transform at `scale` × the metrics' ε `epsilon`.
+fn curve_transform(
+    table: &Table,
+    epsilon: f64,
+    scale: f64,
+    has_negative: bool,
+    progress: Progress,
+) -> Transform {
+    let c = table.channels().len();
+    progress("transforming (log curve, colour)");
+    let eps = (scale * epsilon).max(f64::MIN_POSITIVE);
+    // A table with negative values (a noisy measured fit) keeps their sign: the metrics
+    // compare them with the source's like any other value, and the log curve would decode
+    // them as 0 (a relative error of 1 at each).
+    let curve = if has_negative {
+        Curve::SignedLog { eps: vec![eps; c] }
+    } else {
+        Curve::Log { eps: vec![eps; c] }
+    };
+    let transform = transform_with_curve(table, curve, true, None);
+    // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid) and
+    // the estimator's construction are freed: handed back before the DCT's planes.
+    crate::memory::release_free_memory();
+    transform
 }
 
 /// The state of one variant's rate control.
@@ -730,6 +798,22 @@ impl Control<'_> {
                 v.deadzone,
             ))
         };
+        if spec.decodes_cells(c) {
+            let cells = self.est.cells();
+            let mut at_cells = vec![0f32; cells.len() * c];
+            crate::memory::release_free_memory();
+            spec.decode_cells(&payload, self.layout, cells, &mut at_cells)?;
+            if at_cells.iter().any(|v| !v.is_finite()) {
+                return Err(Error::Failure(format!(
+                    "rate control: step {s:e} decoded to a non-finite value"
+                )));
+            }
+            let e = self.est.measure_cells(&at_cells);
+            return Ok((spec, payload, e));
+        }
+        if self.decoded.is_empty() {
+            self.decoded.resize(self.table.grid().cells() * c, 0.0);
+        }
         // A scratch of its own, freed after the decode: kept across candidates, its 16 MB
         // (MERL grid) would sit beside the next candidate's quantized codes and the
         // measurement's arrays.
