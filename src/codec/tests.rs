@@ -648,6 +648,9 @@ fn the_f32_planes_made_together_are_each_plane_made_alone_rounded() {
         assert!(tr.colour.is_some(), "{grid}");
         let together = filled_planes_f32(&t, tr);
         assert_eq!(together.len(), 3);
+        // Made in the samples' own memory: the same bits.
+        let in_place = filled_planes_f32_in_place(&t, tr, t.data().to_vec());
+        assert_eq!(in_place, together, "{grid}: made in the samples");
         for (k, p) in together.iter().enumerate() {
             let alone = filled_plane(&t, tr, k);
             for (f, (a, b)) in p.iter().zip(&alone).enumerate() {
@@ -660,6 +663,22 @@ fn the_f32_planes_made_together_are_each_plane_made_alone_rounded() {
         }
     }
     assert!(filled >= 2, "grids with invalid cells to fill: {filled}");
+    // One channel: the plane made in the samples is the plane made beside them.
+    let t = crate::tabulate::tabulate(
+        &crate::model::Model::parse("ggx:alpha=0.3").unwrap(),
+        &parse_grid_spec("halfdiff4:8x6x8x10").unwrap(),
+        &Default::default(),
+    )
+    .unwrap();
+    let spec = CodecRequest::parse("dct:step=0.02,weight=cosine")
+        .unwrap()
+        .resolve(&t)
+        .unwrap();
+    let tr = spec.transform().unwrap();
+    assert_eq!(
+        filled_planes_f32_in_place(&t, tr, t.data().to_vec()),
+        filled_planes_f32(&t, tr)
+    );
 }
 
 /// Every grid kind (warps, placements, θmax), weighted chains: the decoded table meets the

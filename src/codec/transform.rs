@@ -153,24 +153,34 @@ impl Colour {
     /// channel covariance by cyclic Jacobi rotations (Golub & Van Loan §8.5), sorted by
     /// decreasing variance, each with its largest entry positive (deterministic signs).
     pub fn klt(samples: &[f64], c: usize) -> Colour {
-        let n = samples.len() / c.max(1);
+        Colour::klt_of_rows(c, &|row: &mut dyn FnMut(&[f64])| {
+            samples.chunks_exact(c).for_each(&mut *row)
+        })
+    }
+
+    /// [`Colour::klt`] of the rows `rows` hands to its argument, in the same order each
+    /// time it is called (twice: for the mean, then the covariance), so that the samples
+    /// need not be held: the same bits as `klt` of the rows collected.
+    pub fn klt_of_rows(c: usize, rows: &dyn Fn(&mut dyn FnMut(&[f64]))) -> Colour {
+        let mut n = 0usize;
         let mut mean = vec![0.0; c];
-        for row in samples.chunks_exact(c) {
+        rows(&mut |row| {
+            n += 1;
             for k in 0..c {
                 mean[k] += row[k];
             }
-        }
+        });
         for m in &mut mean {
             *m /= n.max(1) as f64;
         }
         let mut a = vec![0.0; c * c];
-        for row in samples.chunks_exact(c) {
+        rows(&mut |row| {
             for i in 0..c {
                 for j in 0..c {
                     a[i * c + j] += (row[i] - mean[i]) * (row[j] - mean[j]);
                 }
             }
-        }
+        });
         let mut v = vec![0.0; c * c];
         for i in 0..c {
             v[i * c + i] = 1.0;

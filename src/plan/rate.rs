@@ -30,7 +30,7 @@ use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
-    filled_plane_f32_in_place, filled_planes_f32, transform_with_curve,
+    filled_planes_f32, filled_planes_f32_in_place, transform_with_curve,
 };
 use crate::simd::dispatch;
 use crate::table::Table;
@@ -529,14 +529,7 @@ fn transform_and_coefficients(
     // coefficients of the others and the last plane were before.
     let mut max_coef = 0.0f64;
     if table.grid().cells() > F32_PLANE_CELLS {
-        let coefs: Vec<Vec<f32>> = filled_planes_f32(table, &transform)
-            .into_iter()
-            .map(|p| {
-                let f = dct::forward_owned_f32(p, &dims);
-                max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs() as f64));
-                f
-            })
-            .collect();
+        let (coefs, max_coef) = forward_f32(filled_planes_f32(table, &transform), &dims);
         return (transform, coefs, max_coef);
     }
     let coefs: Vec<Vec<f32>> = (0..c)
@@ -549,16 +542,17 @@ fn transform_and_coefficients(
     (transform, coefs, max_coef)
 }
 
-/// Whether [`transform_and_coefficients_in_samples`] serves `table`: one channel, and a plane
-/// made in f32 ([`F32_PLANE_CELLS`]).
+/// Whether [`transform_and_coefficients_in_samples`] serves `table`: planes made in f32
+/// ([`F32_PLANE_CELLS`]).
 fn plane_in_samples(table: &Table) -> bool {
-    table.channels().len() == 1 && table.grid().cells() > F32_PLANE_CELLS
+    table.grid().cells() > F32_PLANE_CELLS
 }
 
-/// [`transform_and_coefficients`] of a table whose samples it may take: the plane is made and
-/// transformed in the samples' own memory ([`filled_plane_f32_in_place`]), so the table and
-/// a plane of its size are never held together (a 64⁴ table's 67 MB). The same bits; the
-/// table is left without samples (lent, [`encode_within_lending`]).
+/// [`transform_and_coefficients`] of a table whose samples it may take: the planes are made
+/// in the samples' own memory ([`filled_planes_f32_in_place`]) and each transformed in its
+/// own, so the table and its planes are never held together (a 64⁴ table's 67 MB a
+/// channel). The same bits; the table is left without samples (lent,
+/// [`encode_within_lending`]).
 fn transform_and_coefficients_in_samples(
     table: &mut Table,
     epsilon: f64,
@@ -571,10 +565,25 @@ fn transform_and_coefficients_in_samples(
     progress("forward DCT");
     let dims = table.grid().shape();
     let samples = table.lend_samples();
-    let plane = filled_plane_f32_in_place(table, &transform, samples);
-    let f = dct::forward_owned_f32(plane, &dims);
-    let max_coef = f.iter().fold(0.0f64, |m, c| m.max(c.abs() as f64));
-    (transform, vec![f], max_coef)
+    let (coefs, max_coef) = forward_f32(
+        filled_planes_f32_in_place(table, &transform, samples),
+        &dims,
+    );
+    (transform, coefs, max_coef)
+}
+
+/// The DCT of each f32 plane, in its own memory, and the largest |coefficient|.
+fn forward_f32(planes: Vec<Vec<f32>>, dims: &[usize]) -> (Vec<Vec<f32>>, f64) {
+    let mut max_coef = 0.0f64;
+    let coefs = planes
+        .into_iter()
+        .map(|p| {
+            let f = dct::forward_owned_f32(p, dims);
+            max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs() as f64));
+            f
+        })
+        .collect();
+    (coefs, max_coef)
 }
 
 /// The curve (and colour) transform at `scale` × the metrics' ε `epsilon`.
