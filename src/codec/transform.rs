@@ -119,6 +119,9 @@ pub struct Colour {
     pub matrix: Vec<f64>,
 }
 
+/// Hands each row of a set of samples to its argument, in a fixed order.
+pub type RowVisitor<'a> = dyn Fn(&mut dyn FnMut(&[f64])) + 'a;
+
 impl Colour {
     pub fn channels(&self) -> usize {
         (self.matrix.len() as f64).sqrt() as usize
@@ -161,7 +164,7 @@ impl Colour {
     /// [`Colour::klt`] of the rows `rows` hands to its argument, in the same order each
     /// time it is called (twice: for the mean, then the covariance), so that the samples
     /// need not be held: the same bits as `klt` of the rows collected.
-    pub fn klt_of_rows(c: usize, rows: &dyn Fn(&mut dyn FnMut(&[f64]))) -> Colour {
+    pub fn klt_of_rows(c: usize, rows: &RowVisitor) -> Colour {
         let mut n = 0usize;
         let mut mean = vec![0.0; c];
         rows(&mut |row| {
