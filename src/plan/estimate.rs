@@ -566,6 +566,28 @@ impl ErrorEstimator {
         self.measure_by(|s, g| s.apply_at_cells(values, g, |f| read.position(f)))
     }
 
+    /// The metrics of `data` on the check set alone (`None` without one): what
+    /// [`ErrorEstimator::measure`] gives in [`Estimate::check`], for an estimate made before
+    /// [`ErrorEstimator::add_check`].
+    pub fn measure_check(&self, data: &[f32]) -> Option<Metrics> {
+        assert_eq!(
+            data.len(),
+            self.grid_cells * self.channels,
+            "ErrorEstimator::measure_check: data length"
+        );
+        self.check_by(&|s, g| s.apply(data, g))
+    }
+
+    /// The check set's metrics from the values `apply` gives of its stencils.
+    fn check_by(&self, apply: &impl Fn(&Stencil, &mut [f64])) -> Option<Metrics> {
+        let c = self.channels;
+        self.check.as_ref().map(|s| {
+            let mut g = vec![0.0; s.pairs.count() * c];
+            apply(&s.stencil, &mut g);
+            metrics_of(&s.pairs, &s.reference, &g, c, None)
+        })
+    }
+
     /// The estimate from the interpolated values `apply` gives of each set's stencils.
     fn measure_by(&self, apply: impl Fn(&Stencil, &mut [f64])) -> Estimate {
         let c = self.channels;
@@ -574,11 +596,7 @@ impl ErrorEstimator {
         apply(&self.stencil, &mut g);
         let point = metrics_of(&self.pairs, &self.reference, &g, c, None);
         let eps_low = self.epsilon_low.min(point.epsilon);
-        let check = self.check.as_ref().map(|s| {
-            let mut g = vec![0.0; s.pairs.count() * c];
-            apply(&s.stencil, &mut g);
-            metrics_of(&s.pairs, &s.reference, &g, c, None)
-        });
+        let check = self.check_by(&apply);
         // Per pair: squared errors averaged over channels (abs, rel, log) and whether the pair
         // is in the core; the core relative errors of every channel.
         struct PairTerms {

@@ -255,7 +255,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             spec = table.grid().describe();
         }
         est.add_check(&table, &check, None)?;
-        let floor = est.measure(table.data());
+        floor.check = est.measure_check(table.data());
         timings.push((
             format!("stencils and grid error {spec}"),
             t.elapsed().as_secs_f64(),

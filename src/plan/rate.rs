@@ -376,11 +376,11 @@ fn encode(
                 ),
             },
         };
-        // Candidates of 1 or 3 channels are decoded at the estimator's cells alone
-        // ([`CodecSpec::decode_cells`]): no decode buffer, and lent samples are freed
+        // Candidates of a large table of 1 or 3 channels are decoded at the estimator's cells
+        // alone ([`CodecSpec::decode_cells`]): no decode buffer, and lent samples are freed
         // (the chosen file's decode is given back at the end).
         if decoded.is_empty() {
-            let cells_only = matches!(access.table().channels().len(), 1 | 3);
+            let cells_only = decodes_at_cells(access.table());
             match (&mut access, lend) {
                 (Access::Lend(t, _), true) => {
                     let samples = t.lend_samples();
@@ -540,6 +540,15 @@ fn transform_and_coefficients(
         })
         .collect();
     (transform, coefs, max_coef)
+}
+
+/// Whether the candidates of `table` are decoded at the estimator's cells alone: 1 or 3
+/// channels (the chains [`CodecSpec::decodes_cells`] takes) and more than 2²³ values (32 MiB
+/// of f32). A smaller table's whole decode (the MERL grid's, tiled) is faster than one at
+/// its cells, and its decode buffer is no peak.
+fn decodes_at_cells(table: &Table) -> bool {
+    let c = table.channels().len();
+    matches!(c, 1 | 3) && table.grid().cells() * c > 1 << 23
 }
 
 /// Whether [`transform_and_coefficients_in_samples`] serves `table`: planes made in f32
@@ -807,7 +816,7 @@ impl Control<'_> {
                 v.deadzone,
             ))
         };
-        if spec.decodes_cells(c) {
+        if decodes_at_cells(self.table) && spec.decodes_cells(c) {
             let cells = self.est.cells();
             let mut at_cells = vec![0f32; cells.len() * c];
             crate::memory::release_free_memory();
