@@ -37,12 +37,18 @@ pub fn quantized_dct_planes(
 /// Plane `k` of [`filled_planes`], the same bits, made alone: the invalid cells of each
 /// plane are filled from that plane only.
 pub fn filled_plane(table: &Table, transform: &Transform, k: usize) -> Vec<f64> {
-    let dims = table.grid().shape();
     let mut planes = [vec![0.0; table.grid().cells()]];
     transform_into(table, transform, &mut planes, |_| k);
+    let [plane] = planes;
+    filled(table, plane)
+}
+
+/// `plane` (one of `table`'s grid) with its invalid cells filled ([`domain::fill_invalid`]).
+fn filled<T: dct::PlaneValue>(table: &Table, plane: Vec<T>) -> Vec<T> {
+    let mut planes = [plane];
     domain::fill_invalid(
         &mut planes,
-        &dims,
+        &table.grid().shape(),
         table.valid(),
         &fill_order(table.grid().kind()),
     );
@@ -102,18 +108,7 @@ pub fn filled_planes_f32_in_place(
         },
     );
     drop(weights);
-    let dims = table.grid().shape();
-    let fill = |plane: Vec<f32>| {
-        let mut planes = [plane];
-        domain::fill_invalid(
-            &mut planes,
-            &dims,
-            table.valid(),
-            &fill_order(table.grid().kind()),
-        );
-        let [plane] = planes;
-        plane
-    };
+    let fill = |plane: Vec<f32>| filled(table, plane);
     let mut planes: Vec<Vec<f32>> = Vec::with_capacity(c);
     for k in (1..c).rev() {
         // Components 0..=k interleaved: take k out, pack 0..k closer (each cell's values move

@@ -516,6 +516,40 @@ impl CodecSpec {
         self.decode_into_with(payload, layout, out, &mut DecodeScratch::lean())
     }
 
+    /// A DCT chain's quantized coefficient boxes read from `payload`, with its transform and
+    /// steps (`None` for another chain).
+    #[allow(clippy::type_complexity)] // the three parts the inverse DCT takes.
+    fn dct_components(
+        &self,
+        payload: &[u8],
+        layout: &Layout,
+        scratch: &mut DecodeScratch,
+    ) -> Result<Option<(Vec<dct::Coefficients>, &Transform, &[f64])>> {
+        let (c, dims) = (layout.channels, layout.dims());
+        Ok(match self {
+            CodecSpec::Dct {
+                transform,
+                dct: stage,
+                entropy,
+                ..
+            } => {
+                let raw = entropy.decompress_capped(payload, dct_stream_cap(layout)?)?;
+                Some((dct::deserialize(&raw, &dims, c)?, transform, &stage.step))
+            }
+            CodecSpec::DctContext {
+                transform,
+                dct: stage,
+                coding,
+                ..
+            } => Some((
+                coefcode::decode_with(payload, &dims, c, coding.model, scratch)?,
+                transform,
+                &stage.step,
+            )),
+            _ => None,
+        })
+    }
+
     /// Whether [`CodecSpec::decode_cells`] decodes this chain on a table of `channels`
     /// channels: the DCT chains without a residual, of 1 or 3 channels.
     pub fn decodes_cells(&self, channels: usize) -> bool {
@@ -550,29 +584,9 @@ impl CodecSpec {
                     .to_string(),
             ));
         }
-        let scratch = &mut DecodeScratch::lean();
-        let (mut comps, transform, steps) = match self {
-            CodecSpec::Dct {
-                transform,
-                dct: stage,
-                entropy,
-                ..
-            } => {
-                let raw = entropy.decompress_capped(payload, dct_stream_cap(layout)?)?;
-                (dct::deserialize(&raw, &dims, c)?, transform, &stage.step)
-            }
-            CodecSpec::DctContext {
-                transform,
-                dct: stage,
-                coding,
-                ..
-            } => (
-                coefcode::decode_with(payload, &dims, c, coding.model, scratch)?,
-                transform,
-                &stage.step,
-            ),
-            _ => unreachable!("decodes_cells accepted the chain"),
-        };
+        let (mut comps, transform, steps) = self
+            .dct_components(payload, layout, &mut DecodeScratch::lean())?
+            .expect("decodes_cells accepted the chain");
         let fin = simd::Finisher::new(transform, layout);
         idct::decode_cells(&mut comps, steps, &dims, &fin, layout.valid, cells, out);
         Ok(())
@@ -650,25 +664,11 @@ impl CodecSpec {
                 }
                 Ok(())
             }
-            CodecSpec::Dct {
-                transform,
-                dct: stage,
-                entropy,
-                ..
-            } => {
-                let raw = entropy.decompress_capped(payload, dct_stream_cap(layout)?)?;
-                let mut comps = dct::deserialize(&raw, &dims, c)?;
-                inverse_dct(&mut comps, transform, &stage.step, layout, out, scratch);
-                Ok(())
-            }
-            CodecSpec::DctContext {
-                transform,
-                dct: stage,
-                coding,
-                ..
-            } => {
-                let mut comps = coefcode::decode_with(payload, &dims, c, coding.model, scratch)?;
-                inverse_dct(&mut comps, transform, &stage.step, layout, out, scratch);
+            CodecSpec::Dct { .. } | CodecSpec::DctContext { .. } => {
+                let (mut comps, transform, steps) = self
+                    .dct_components(payload, layout, scratch)?
+                    .expect("a DCT chain");
+                inverse_dct(&mut comps, transform, steps, layout, out, scratch);
                 for q in comps {
                     scratch.give_i32(q.codes);
                 }
