@@ -521,18 +521,34 @@ fn expand_at_cells(
     slab_shape[a0] = 1;
     let mut slab_dims = dims.to_vec();
     slab_dims[a0] = 1;
+    // The set's cells of each slab. Read from the set's bitmap a block of `stride` cells at a
+    // time when blocks are long; with short ones (a0 near the last axis: a slab's cells are
+    // every n0-th) that is a call per few cells, so the cells are sorted into their slabs
+    // first, in one pass (4 bytes a cell, freed with the decode).
+    let buckets = (stride < 64).then(|| {
+        let slab_of = |f: u32| (f as usize / stride) % n0;
+        let mut starts = vec![0usize; n0 + 1];
+        for f in cells.iter() {
+            starts[slab_of(f) + 1] += 1;
+        }
+        for j in 0..n0 {
+            starts[j + 1] += starts[j];
+        }
+        let mut next = starts.clone();
+        let mut flats = vec![0u32; cells.len()];
+        for f in cells.iter() {
+            let j = slab_of(f);
+            flats[next[j]] = f;
+            next[j] += 1;
+        }
+        (starts, flats)
+    });
     // One slab: its (place, value) pairs.
     let slab = |scratch: &mut DecodeScratch, j: usize| -> Vec<(u32, f32)> {
         let mut kept = Vec::new();
-        let mut any = false;
-        for hi in 0..blocks {
-            let start = (hi * n0 + j) * stride;
-            cells.for_each_in(start..start + stride, |_, _| any = true);
-            if any {
-                break;
-            }
-        }
-        if !any {
+        if let Some((starts, _)) = &buckets
+            && starts[j] == starts[j + 1]
+        {
             return kept;
         }
         let mut a = scratch.take_f32(outer * inner);
@@ -545,11 +561,27 @@ fn expand_at_cells(
             scratch,
             dct_pass(q, dims),
         );
-        for hi in 0..blocks {
-            let start = (hi * n0 + j) * stride;
-            cells.for_each_in(start..start + stride, |f, place| {
-                kept.push((place as u32, full[hi * stride + (f as usize - start)]));
-            });
+        // Cell f of slab j is at hi·stride + lo of its full array.
+        let at = |f: u32| {
+            let f = f as usize;
+            full[f / (stride * n0) * stride + f % stride]
+        };
+        match &buckets {
+            Some((starts, flats)) => {
+                kept.extend(
+                    flats[starts[j]..starts[j + 1]]
+                        .iter()
+                        .map(|&f| (cells.position(f), at(f))),
+                );
+            }
+            None => {
+                for hi in 0..blocks {
+                    let start = (hi * n0 + j) * stride;
+                    cells.for_each_in(start..start + stride, |f, place| {
+                        kept.push((place as u32, at(f)));
+                    });
+                }
+            }
         }
         scratch.give_f32(full);
         kept

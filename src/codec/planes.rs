@@ -65,10 +65,17 @@ pub fn filled_planes_f32(table: &Table, transform: &Transform) -> Vec<Vec<f32>> 
     let c = table.channels().len();
     let mut planes = vec![vec![0f32; table.grid().cells()]; c];
     transform_into(table, transform, &mut planes, |k| k);
-    let dims = table.grid().shape();
-    for p in planes.chunks_mut(1) {
-        domain::fill_invalid(p, &dims, table.valid(), &fill_order(table.grid().kind()));
-    }
+    fill_each(table, planes)
+}
+
+/// Each of `planes` (of `table`'s grid) with its invalid cells filled
+/// ([`domain::fill_invalid`]), in parallel: each plane's fill is its own, so the same values
+/// as one after the other (a 64⁴ RGB table's three took 1.1 s in a row).
+fn fill_each(table: &Table, mut planes: Vec<Vec<f32>>) -> Vec<Vec<f32>> {
+    use rayon::prelude::*;
+    planes
+        .par_iter_mut()
+        .for_each(|p| *p = filled(table, std::mem::take(p)));
     planes
 }
 
@@ -108,7 +115,6 @@ pub fn filled_planes_f32_in_place(
         },
     );
     drop(weights);
-    let fill = |plane: Vec<f32>| filled(table, plane);
     let mut planes: Vec<Vec<f32>> = Vec::with_capacity(c);
     for k in (1..c).rev() {
         // Components 0..=k interleaved: take k out, pack 0..k closer (each cell's values move
@@ -122,11 +128,11 @@ pub fn filled_planes_f32_in_place(
         }
         samples.truncate(cells * k);
         samples.shrink_to_fit();
-        planes.push(fill(plane));
+        planes.push(plane);
     }
-    planes.push(fill(samples));
+    planes.push(samples);
     planes.reverse();
-    planes
+    fill_each(table, planes)
 }
 
 /// `planes[i]` = component `component(i)` of every cell's transform (curve, weight, colour),
@@ -306,7 +312,7 @@ pub fn transform_with_curve(
         // made again for each of the KLT's two passes when that would be larger than the
         // table (249 MB for a 64⁴ RGB one): the same rows in the same order, the same bits.
         let rows = |row: &mut dyn FnMut(&[f64])| {
-            t.for_each_cell(table.data(), c, table.grid(), valid, |f, z| {
+            t.for_each_cell_batched(table.data(), c, table.grid(), valid, |f, z| {
                 if valid[f] {
                     row(z);
                 }
