@@ -312,7 +312,7 @@ pub fn transform_with_curve(
         // made again for each of the KLT's two passes when that would be larger than the
         // table (249 MB for a 64⁴ RGB one): the same rows in the same order, the same bits.
         let rows = |row: &mut dyn FnMut(&[f64])| {
-            t.for_each_cell_batched(table.data(), c, table.grid(), valid, |f, z| {
+            t.for_each_cell(table.data(), c, table.grid(), valid, |f, z| {
                 if valid[f] {
                     row(z);
                 }

@@ -441,29 +441,11 @@ impl Transform {
     }
 
     /// The transformed components of every cell in turn, `visit(cell, z)`: what
-    /// [`Transform::forward_all`] stores, without holding every cell at once.
+    /// [`Transform::forward_all`] stores, without holding every cell at once. Each batch of
+    /// cells is transformed in parallel before its cells are visited, in
+    /// order: the values of one `forward_cell` per cell (the curve's logs are most of a
+    /// visit's time, and a KLT visits a 64⁴ RGB table's 50 M values twice).
     pub fn for_each_cell(
-        &self,
-        data: &[f32],
-        c: usize,
-        grid: &Grid,
-        valid: &[bool],
-        mut visit: impl FnMut(usize, &[f64]),
-    ) {
-        let w = self.cell_weights(grid, valid);
-        let mut y = vec![0.0; c];
-        let mut o = vec![0.0; c];
-        for (f, cell) in data.chunks_exact(c).enumerate() {
-            let wf = w.as_ref().map_or(1.0, |w| w.at(f));
-            self.forward_cell(cell, wf, &mut y, &mut o);
-            visit(f, &o);
-        }
-    }
-
-    /// [`Transform::for_each_cell`] with each batch of cells transformed in parallel before
-    /// its cells are visited, in the same order: the same values (the curve's logs are most
-    /// of a visit's time, and a KLT visits a 64⁴ RGB table's 50 M values twice).
-    pub fn for_each_cell_batched(
         &self,
         data: &[f32],
         c: usize,
@@ -597,11 +579,16 @@ mod tests {
             weight: Some(Weight::Cosine),
         };
         let (mut serial, mut batched) = (Vec::new(), Vec::new());
-        t.for_each_cell(&data, 3, &g, &valid, |f, z| {
+        // The serial visit: one `forward_cell` per cell, in order.
+        let w = t.cell_weights(&g, &valid);
+        let (mut y, mut z) = (vec![0.0; 3], vec![0.0; 3]);
+        for (f, cell) in data.chunks_exact(3).enumerate() {
+            let wf = w.as_ref().map_or(1.0, |w| w.at(f));
+            t.forward_cell(cell, wf, &mut y, &mut z);
             serial.push(f as u64);
             serial.extend(z.iter().map(|v| v.to_bits()));
-        });
-        t.for_each_cell_batched(&data, 3, &g, &valid, |f, z| {
+        }
+        t.for_each_cell(&data, 3, &g, &valid, |f, z| {
             batched.push(f as u64);
             batched.extend(z.iter().map(|v| v.to_bits()));
         });

@@ -444,21 +444,15 @@ impl ErrorEstimator {
     }
 
     /// Adds the check set `check` (on `table`, the estimator's grid and validity; an
-    /// estimator made without one), its pairs tried first in `hint`'s order (the check set's
-    /// order in an estimator of the same grid): the estimator `new` would have made with it.
-    pub fn add_check(
-        &mut self,
-        table: &Table,
-        check: &ReferenceSet,
-        hint: Option<&[u32]>,
-    ) -> Result<()> {
+    /// estimator made without one): the estimator `new` would have made with it.
+    pub fn add_check(&mut self, table: &Table, check: &ReferenceSet) -> Result<()> {
         if check.channels != self.channels {
             return Err(Error::input(format!(
                 "error estimate: the source has {} channels, the table {}",
                 check.channels, self.channels
             )));
         }
-        let scored = Scored::new(table, check, hint);
+        let scored = Scored::new(table, check, None);
         self.check = Some(scored);
         self.read = std::sync::OnceLock::new();
         Ok(())

@@ -254,7 +254,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
             table.set_interp_space(kept);
             spec = table.grid().describe();
         }
-        est.add_check(&table, &check, None)?;
+        est.add_check(&table, &check)?;
         floor.check = est.measure_check(table.data());
         timings.push((
             format!("stencils and grid error {spec}"),
