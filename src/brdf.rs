@@ -127,6 +127,13 @@ pub trait Brdf: Send + Sync {
         true
     }
 
+    /// True for a source that is itself samples on a grid (a table, a measured file): it
+    /// has values at its own samples only, so re-sampling it on another grid adds the
+    /// interpolation of one grid to the other's (planners keep its layout). False for models.
+    fn is_sampled(&self) -> bool {
+        false
+    }
+
     /// The stored θ limit of the source in degrees (a table's θmax), when it has one.
     fn theta_max_deg(&self) -> Option<f64> {
         None

@@ -146,7 +146,14 @@ impl SampleSet {
                 continue;
             }
             grid.unflatten(f, &mut idx[..d]);
-            pairs.push(grid.cell_dirs(&idx[..d]));
+            let (wi, wo) = grid.cell_dirs(&idx[..d]);
+            // A valid cell below the horizon (an extended grid's, or a measured file's value
+            // there) is read by interpolation but is no pair of the BRDF's domain: both
+            // sources give 0 at it.
+            if !(wi.z > 0.0 && wo.z > 0.0) {
+                continue;
+            }
+            pairs.push((wi, wo));
             weights.push(grid.cell_measure(&idx[..d]));
         }
         SampleSet {

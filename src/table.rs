@@ -1861,6 +1861,10 @@ impl<T: std::borrow::Borrow<Table> + Send + Sync> InterpolatedTable<T> {
 }
 
 impl<T: std::borrow::Borrow<Table> + Send + Sync> Brdf for InterpolatedTable<T> {
+    fn is_sampled(&self) -> bool {
+        true
+    }
+
     fn channels(&self) -> &Channels {
         self.t().channels()
     }

@@ -172,9 +172,10 @@ fn pack_with_an_unmeetable_budget_exits_1_and_writes_nothing() {
             predicates::str::contains("the budget log_rmse ≤ 0.00001 cannot be met")
                 .and(predicates::str::contains("the grid's own error"))
                 // The default grid and the refinements tried, each with its own error.
-                // (interpolated in a log space when that is measured closer).
+                // (interpolated in a log space when that is measured closer; the default
+                // grid is extended below the horizon).
                 .and(predicates::str::is_match(
-                    r"halfdiff3 90x90x180 \(warp sqrt/linear/linear; at edge/edge/edge\)(; space log:[0-9.e+-]+)?: log_rmse ",
+                    r"halfdiff3 90x90x180 \(warp sqrt/grazing/linear; at edge/edge/edge\)(; space log:[0-9.e+-]+)?; horizon extend: log_rmse ",
                 ).unwrap())
                 .and(predicates::str::contains("no file written")),
         );

@@ -27,8 +27,10 @@ pub struct PackArgs {
     /// Output file (`-` for stdout; the report then goes to stderr).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Grid spec (see `tabulate --help`). Default: `merl` for isotropic reciprocal sources,
-    /// `spherical3:90x90x180` for isotropic non-reciprocal ones (measured data),
+    /// Grid spec (see `tabulate --help`). Default for isotropic reciprocal sources:
+    /// `halfdiff3:90x90x180,warp=sqrt/grazing/linear,at=edge,horizon=extend` (MERL's grid,
+    /// θd dense toward the horizon, extended below it); `spherical3:90x90x180` for isotropic
+    /// non-reciprocal ones (measured data),
     /// `halfdiff4:64` for anisotropic ones; a finer grid of the same layout when the default
     /// grid alone cannot meet the budget.
     #[arg(long)]

@@ -14,7 +14,8 @@ pub struct TabulateArgs {
     /// MERL .binary) or RGL .bsdf file.
     pub source: String,
     /// Grid: `merl` or KIND:DIMS[,warp=..][,at=center|edge][,theta-max=DEG][,weight=none|cosine][,space=linear|log:S]
-    /// (KIND spherical4|spherical3|halfdiff3|halfdiff4; see docs/parameterizations.md).
+    /// [,horizon=cut|extend] (KIND spherical4|spherical3|halfdiff3|halfdiff4; see
+    /// docs/parameterizations.md).
     #[arg(long, default_value = "merl")]
     pub grid: String,
     /// Output file (`-` for stdout: native format unless --format says otherwise).

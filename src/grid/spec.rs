@@ -1,15 +1,15 @@
 //! The grid spec grammar of the CLI (documented in docs/parameterizations.md):
 //!
 //! ```text
-//! merl
+//! merl[,theta-max=DEG][,horizon=cut|extend]
 //! KIND:DIMS[,warp=W[/W...]][,at=center|edge[/...]][,theta-max=DEG][,weight=none|cosine]
-//!       [,space=linear|log:S]
+//!       [,space=linear|log:S][,horizon=cut|extend]
 //! KIND  = spherical4 | spherical3 | halfdiff3 | halfdiff4
 //! DIMS  = N | NxNx...            (one N applies to every axis)
 //! W     = linear | sqrt | grazing (one value applies to every axis)
 //! ```
 
-use super::{Grid, GridKind, InterpSpace, InterpWeight, Placement, Warp};
+use super::{Grid, GridKind, Horizon, InterpSpace, InterpWeight, Placement, Warp};
 use crate::{Error, Result};
 
 /// Parses a grid spec such as `merl` or `halfdiff4:64,warp=sqrt/linear/linear/linear`.
@@ -30,9 +30,13 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
                         ))
                     })?)
                 }
+                Some(("horizon", "cut")) => d.horizon = Horizon::Cut,
+                Some(("horizon", "extend")) => d.horizon = Horizon::Extend,
                 _ => {
                     return Err(Error::input(format!(
-                        "grid {spec:?}: option {opt:?}: `merl` takes only theta-max=DEG (spell                          the grid out as halfdiff3:90x90x180,... to change more)"
+                        "grid {spec:?}: option {opt:?}: `merl` takes only theta-max=DEG and \
+                         horizon=cut|extend (spell the grid out as halfdiff3:90x90x180,... to \
+                         change more)"
                     )));
                 }
             }
@@ -73,6 +77,7 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
     let mut theta_max = None;
     let mut weight = InterpWeight::None;
     let mut space = InterpSpace::Linear;
+    let mut horizon = Horizon::Cut;
     for opt in parts {
         let (k, v) = opt.split_once('=').ok_or_else(|| {
             Error::input(format!("grid {spec:?}: option {opt:?} is not key=value"))
@@ -138,17 +143,30 @@ pub fn parse_grid_spec(spec: &str) -> Result<Grid> {
                     )));
                 }
             },
+            "horizon" => {
+                horizon = match v {
+                    "cut" => Horizon::Cut,
+                    "extend" => Horizon::Extend,
+                    _ => {
+                        return Err(Error::input(format!(
+                            "grid {spec:?}: horizon {v:?} is not cut or extend"
+                        )));
+                    }
+                }
+            }
             _ => {
                 return Err(Error::input(format!(
-                    "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max, weight, space)"
+                    "grid {spec:?}: unknown option {k:?} (expected warp, at, theta-max, weight, \
+                     space, horizon)"
                 )));
             }
         }
     }
     let axes: Vec<_> = (0..d).map(|k| (dims[k], warps[k], placements[k])).collect();
-    Ok(Grid::new(kind, &axes, theta_max)?
+    Grid::new(kind, &axes, theta_max)?
         .with_weight(weight)
-        .with_space(space))
+        .with_space(space)
+        .with_horizon(horizon)
 }
 
 #[cfg(test)]

@@ -462,6 +462,10 @@ fn rotate_vector(v: Vec3, axis: Vec3, angle: f64) -> Vec3 {
 }
 
 impl Brdf for MerlLookup {
+    fn is_sampled(&self) -> bool {
+        true
+    }
+
     fn channels(&self) -> &Channels {
         &self.channels
     }

@@ -450,6 +450,23 @@ mod tests {
         assert_eq!(from_bytes(&bytes, Path::new("x")).unwrap(), t2);
     }
 
+    /// A table extended below the horizon keeps its grid and, through the geometric mask
+    /// alone (no MASK section), its valid cells below the horizon.
+    #[test]
+    fn extended_grids_round_trip_with_a_geometric_mask() {
+        let m = crate::model::Model::parse("ggx:alpha=0.3,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:6x8x10,warp=sqrt/linear/linear,horizon=extend").unwrap();
+        let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
+        assert!(t.valid().iter().all(|&v| v));
+        let bytes = to_bytes(&t, &CodecSpec::default()).unwrap();
+        let text = String::from_utf8_lossy(&bytes);
+        assert!(text.contains(r#""mask":"geometric""#), "{text}");
+        assert!(text.contains(r#""horizon":"extend""#));
+        assert_eq!(from_bytes(&bytes, Path::new("x")).unwrap(), t);
+        let h = read_header(&bytes, Path::new("x")).unwrap();
+        assert_eq!(h.valid_cells, g.cells());
+    }
+
     #[test]
     fn unknown_versions_are_refused() {
         let mut bytes = to_bytes(&small_table(), &CodecSpec::default()).unwrap();

@@ -361,6 +361,10 @@ fn mulsign_neg(a: f64, s: f64) -> f64 {
 }
 
 impl Brdf for RglBsdf {
+    fn is_sampled(&self) -> bool {
+        true
+    }
+
     fn channels(&self) -> &Channels {
         &self.channels
     }

@@ -8,14 +8,27 @@ use rayon::prelude::*;
 
 /// The default grid of a source: its symmetries at about MERL's resolution — `halfdiff4:64`
 /// for anisotropic sources, `spherical3:90x90x180` for isotropic non-reciprocal ones (measured
-/// data), `merl` otherwise.
+/// data), and for the others MERL's 90×90×180 half/difference grid extended below the horizon
+/// ([`crate::grid::Horizon::Extend`]) with θd sampled densely toward the horizon (the
+/// `grazing` warp). Cut at the horizon, the queries beside it carried most of a narrow peak's
+/// error; extended, the rest sat in MERL's last θd step (89°–90°, beyond its last sample),
+/// which the warp brings to 0.011°. Both measured in docs/parameterizations.md. A sampled
+/// source (a MERL file: [`Brdf::is_sampled`]) keeps MERL's grid, its own: on another grid
+/// its interpolation adds to the new grid's (gold-metallic-paint's production file grew from
+/// 28,290 to 109,152 B), and so does a source seen within θmax (the y60 scene of
+/// docs/build.md: 1,637 → 3,524 B). The 64⁴ anisotropic grid stays cut: extended, its files grew (Ward
+/// 0.1×0.3 at the preview budget 1,356 → 9,064 B) for no budget met that was missed before.
 pub fn default_grid_spec(src: &dyn Brdf) -> &'static str {
     if !src.is_isotropic() {
         "halfdiff4:64"
     } else if !src.is_reciprocal() {
         "spherical3:90x90x180"
-    } else {
+    } else if src.is_sampled() || src.theta_max_deg().is_some() {
+        // A sampled source's own grid; a source seen within θmax has no horizon in its
+        // domain (a scene's θ ≤ 60°: the grazing θd samples fall outside it).
         "merl"
+    } else {
+        "halfdiff3:90x90x180,warp=sqrt/grazing/linear,at=edge,horizon=extend"
     }
 }
 
@@ -197,9 +210,11 @@ mod tests {
 
     #[test]
     fn default_grids_follow_the_source_symmetries() {
+        const ISOTROPIC: &str =
+            "halfdiff3:90x90x180,warp=sqrt/grazing/linear,at=edge,horizon=extend";
         for (m, want) in [
-            ("ggx:alpha=0.2", "merl"),
-            ("lambert", "merl"),
+            ("ggx:alpha=0.2", ISOTROPIC),
+            ("lambert", ISOTROPIC),
             ("ward:alpha_x=0.1,alpha_y=0.3", "halfdiff4:64"),
         ] {
             let model = Model::parse(m).unwrap();
@@ -207,5 +222,18 @@ mod tests {
             assert_eq!(spec, want, "{m}");
             parse_grid_spec(spec).unwrap();
         }
+        // A sampled source keeps MERL's grid (its own, for a MERL file).
+        let g = parse_grid_spec("halfdiff3:6x6x8").unwrap();
+        let t = crate::tabulate::tabulate(
+            &Model::parse("ggx:alpha=0.2").unwrap(),
+            &g,
+            &Default::default(),
+        )
+        .unwrap();
+        let sampled = crate::table::InterpolatedTable {
+            table: t,
+            interp: crate::table::Interp::Linear,
+        };
+        assert_eq!(default_grid_spec(&sampled), "merl");
     }
 }

@@ -319,6 +319,10 @@ impl SceneSource {
 }
 
 impl Brdf for SceneSource {
+    fn is_sampled(&self) -> bool {
+        self.inner.is_sampled()
+    }
+
     fn channels(&self) -> &Channels {
         match &self.mix {
             Some((c, _)) => c,

@@ -632,10 +632,13 @@ fn slice_values(subject: &Subject, cells: &SliceCells) -> (Vec<f64>, Vec<bool>) 
         return cells
             .table_cell
             .iter()
-            .map(|&flat| {
+            .zip(&cells.pairs)
+            .map(|(&flat, &(wi, wo))| {
                 let v: Vec<f64> = t.cell(flat).iter().map(|&x| f64::from(x)).collect();
                 let y = display.luminance(&v);
-                (if y.is_finite() { y } else { 0.0 }, valid[flat])
+                // A valid cell below the horizon (an extended grid's) is no BRDF value.
+                let shown = valid[flat] && wi.z > 0.0 && wo.z > 0.0;
+                (if y.is_finite() { y } else { 0.0 }, shown)
             })
             .unzip();
     }

@@ -328,7 +328,7 @@ impl Table {
     }
 
     /// The grid as stored in file headers: {"kind", "axes": [{"quantity", "n", "warp",
-    /// "placement"}], "theta_max_deg"?, "interp_weight"?, "interp_space"?}.
+    /// "placement"}], "theta_max_deg"?, "interp_weight"?, "interp_space"?, "horizon"?}.
     #[getter]
     fn grid_desc<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         json_to_py(py, &self.table().grid().desc())
