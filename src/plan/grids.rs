@@ -14,10 +14,11 @@ use rayon::prelude::*;
 /// error; extended, the rest sat in MERL's last θd step (89°–90°, beyond its last sample),
 /// which the warp brings to 0.011°. Both measured in docs/parameterizations.md. A sampled
 /// source (a MERL file: [`Brdf::is_sampled`]) keeps MERL's grid, its own: on another grid
-/// its interpolation adds to the new grid's (gold-metallic-paint's production file grew from
-/// 28,290 to 109,152 B), and so does a source seen within θmax (the y60 scene of
-/// docs/build.md: 1,637 → 3,524 B). The 64⁴ anisotropic grid stays cut: extended, its files grew (Ward
-/// 0.1×0.3 at the preview budget 1,356 → 9,064 B) for no budget met that was missed before.
+/// its interpolation adds to the new grid's (`pack gold-metallic-paint.binary --grid` with the
+/// models' default: 109,152 B, against 28,290 B on its own), and so does a source seen within θmax (the y60 scene of
+/// docs/build.md: 1,637 → 3,524 B). The 64⁴ anisotropic grid stays cut: extended, its files
+/// grew (`pack 'ggx:alpha_x=0.05,alpha_y=0.3,fresnel=au' --max-error preview --grid
+/// halfdiff4:64[,horizon=extend]`: 5,188 → 8,196 B) for no budget met that was missed before.
 pub fn default_grid_spec(src: &dyn Brdf) -> &'static str {
     if !src.is_isotropic() {
         "halfdiff4:64"
