@@ -30,9 +30,9 @@ pub struct PackArgs {
     /// Grid spec (see `tabulate --help`). Default for isotropic reciprocal sources:
     /// `halfdiff3:90x90x180,warp=sqrt/grazing/linear,at=edge,horizon=extend` (MERL's grid,
     /// θd dense toward the horizon, extended below it); `spherical3:90x90x180` for isotropic
-    /// non-reciprocal ones (measured data),
-    /// `halfdiff4:64` for anisotropic ones; a finer grid of the same layout when the default
-    /// grid alone cannot meet the budget.
+    /// non-reciprocal ones (measured data), `halfdiff4:64,warp=linear/linear/grazing/linear`
+    /// for anisotropic ones; a finer grid of the same layout when the default grid alone
+    /// cannot meet the budget.
     #[arg(long)]
     pub grid: Option<String>,
     /// Pairs in the uniform check set; the budget is also guaranteed (at 3σ) for

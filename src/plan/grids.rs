@@ -7,21 +7,24 @@ use crate::table::Table;
 use rayon::prelude::*;
 
 /// The default grid of a source: its symmetries at about MERL's resolution — `halfdiff4:64`
-/// for anisotropic sources, `spherical3:90x90x180` for isotropic non-reciprocal ones (measured
-/// data), and for the others MERL's 90×90×180 half/difference grid extended below the horizon
-/// ([`crate::grid::Horizon::Extend`]) with θd sampled densely toward the horizon (the
-/// `grazing` warp). Cut at the horizon, the queries beside it carried most of a narrow peak's
-/// error; extended, the rest sat in MERL's last θd step (89°–90°, beyond its last sample),
-/// which the warp brings to 0.011°. Both measured in docs/parameterizations.md. A sampled
-/// source (a MERL file: [`Brdf::is_sampled`]) keeps MERL's grid, its own: on another grid
-/// its interpolation adds to the new grid's (`pack gold-metallic-paint.binary --grid` with the
-/// models' default: 109,152 B, against 28,290 B on its own), and so does a source seen within θmax (the y60 scene of
-/// docs/build.md: 1,637 → 3,524 B). The 64⁴ anisotropic grid stays cut: extended, its files
-/// grew (`pack 'ggx:alpha_x=0.05,alpha_y=0.3,fresnel=au' --max-error preview --grid
-/// halfdiff4:64[,horizon=extend]`: 5,188 → 8,196 B) for no budget met that was missed before.
+/// with a grazing θd warp for anisotropic sources, `spherical3:90x90x180` for isotropic
+/// non-reciprocal ones (measured data), and for the others MERL's 90×90×180 half/difference
+/// grid extended below the horizon ([`crate::grid::Horizon::Extend`]) with the same θd warp.
+/// Cut at the horizon, the queries beside it carried most of a narrow peak's error; extended,
+/// the rest sat in MERL's last θd step (89°–90°, beyond its last sample), which the warp
+/// brings to 0.011° (both measured in docs/parameterizations.md). On the 64⁴ grid the last
+/// centred θd sample sat at 89.3°, and one pair at θd 89.58° made Ward 0.1×0.3 miss the
+/// production budget on one seed in ten; with the warp it holds on all ten. A sampled source
+/// (a MERL file: [`Brdf::is_sampled`]) keeps MERL's grid, its own: on another grid its
+/// interpolation adds to the new grid's (`pack gold-metallic-paint.binary --grid` with the
+/// models' default: 109,152 B, against 28,290 B on its own), and so does a source seen within
+/// θmax (the y60 scene of docs/build.md: 1,637 → 3,524 B). The 64⁴ anisotropic grid stays cut:
+/// extended, its files grew (`pack 'ggx:alpha_x=0.05,alpha_y=0.3,fresnel=au' --max-error
+/// preview --grid halfdiff4:64[,horizon=extend]`: 5,188 → 8,196 B), and Ward's f, which grows
+/// without bound toward the horizon, is farther from its continuation there.
 pub fn default_grid_spec(src: &dyn Brdf) -> &'static str {
     if !src.is_isotropic() {
-        "halfdiff4:64"
+        "halfdiff4:64,warp=linear/linear/grazing/linear"
     } else if !src.is_reciprocal() {
         "spherical3:90x90x180"
     } else if src.is_sampled() || src.theta_max_deg().is_some() {
@@ -216,7 +219,10 @@ mod tests {
         for (m, want) in [
             ("ggx:alpha=0.2", ISOTROPIC),
             ("lambert", ISOTROPIC),
-            ("ward:alpha_x=0.1,alpha_y=0.3", "halfdiff4:64"),
+            (
+                "ward:alpha_x=0.1,alpha_y=0.3",
+                "halfdiff4:64,warp=linear/linear/grazing/linear",
+            ),
         ] {
             let model = Model::parse(m).unwrap();
             let spec = default_grid_spec(&model);
