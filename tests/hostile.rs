@@ -151,6 +151,32 @@ fn native_header_declaring_2_pow_31_cells_is_refused_before_the_mask() {
     assert!(start.elapsed().as_secs() < 5, "{:?}", start.elapsed());
 }
 
+/// A header's `horizon` is checked like the rest of its grid: on a spherical grid, with an
+/// unknown value, or with a valid-cell count its mask does not give (a cut table declared
+/// extended), the file is refused with exit 2, naming the file and what is wrong.
+#[test]
+fn a_header_horizon_is_checked_like_the_rest_of_its_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let hd = tabulate(dir.path(), "h.bpk", "lambert", "halfdiff3:4", &[]);
+    let sp = tabulate(dir.path(), "s.bpk", "lambert", "spherical3:4", &[]);
+    for (base, value, name, needle) in [
+        (&sp, "extend", "a.bpk", "halfdiff3 and halfdiff4"),
+        (&hd, "sideways", "b.bpk", "sideways"),
+        (&hd, "extend", "c.bpk", "valid_cells"),
+    ] {
+        let bad = lying_native(&std::fs::read(base).unwrap(), |h| {
+            h["grid"]["horizon"] = value.into()
+        });
+        std::fs::write(dir.path().join(name), &bad).unwrap();
+        for cmd in [
+            &["inspect", name][..],
+            &["eval", name, "--wi", "0,0,1", "--wo", "0,0,1"],
+        ] {
+            assert_refused(&run(dir.path(), cmd), &[name, needle]);
+        }
+    }
+}
+
 #[test]
 fn a_small_zstd_payload_that_expands_past_the_budget_is_refused() {
     let dir = tempfile::tempdir().unwrap();
