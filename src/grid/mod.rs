@@ -295,6 +295,14 @@ impl Horizon {
             Horizon::Extend => "extend",
         }
     }
+    /// The cosine a direction below the horizon is raised to for its cell's value: 0 when
+    /// cut (no pair there is in the domain), [`HORIZON_COS`] when extended.
+    pub fn raised_cos(self) -> f64 {
+        match self {
+            Horizon::Cut => 0.0,
+            Horizon::Extend => HORIZON_COS,
+        }
+    }
 }
 
 /// cos θ of the pair an [`Horizon::Extend`] cell below the horizon is given the value of:
@@ -811,10 +819,7 @@ impl Grid {
         };
         // An extended grid's cell below the horizon holds its pair raised to cos θ =
         // HORIZON_COS ([`Grid::value_pair`]): valid when that pair is in the domain.
-        let floor = match self.horizon {
-            Horizon::Cut => f64::NEG_INFINITY,
-            Horizon::Extend => HORIZON_COS,
-        };
+        let floor = self.horizon.raised_cos();
         let inside = |zi: f64, zo: f64| {
             if zi > 0.0 && zo > 0.0 {
                 self.in_domain_z(zi, zo)
@@ -934,10 +939,7 @@ impl Grid {
                     1
                 };
                 CellCosProducts::HalfDiff {
-                    floor: match self.horizon {
-                        Horizon::Cut => 0.0,
-                        Horizon::Extend => HORIZON_COS,
-                    },
+                    floor: self.horizon.raised_cos(),
                     cos_h: table(0, &cos),
                     sin_h: table(0, &f64::sin),
                     cos_d: table(d, &cos),
