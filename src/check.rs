@@ -6,6 +6,7 @@ use crate::brdf::Brdf;
 use crate::geometry::Vec3;
 use crate::grid::Grid;
 use crate::math::{PI, SplitMix64};
+use crate::table::Table;
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -688,8 +689,9 @@ impl Pairs<'_> {
         n.div_ceil(per)
     }
 
-    /// The pairs and weights of chunk `k` of `per`, in the set's order.
-    fn chunk(&self, k: usize, per: usize) -> (Vec<(Vec3, Vec3)>, Vec<f64>) {
+    /// The pairs and weights of chunk `k` of `per`, in the set's order, and for a grid's
+    /// cells their flat indices.
+    fn chunk(&self, k: usize, per: usize) -> Chunk {
         match self {
             Pairs::Set(s) => {
                 let r = k * per..((k + 1) * per).min(s.pairs.len());
@@ -697,12 +699,20 @@ impl Pairs<'_> {
                     Some(w) => w[r.clone()].to_vec(),
                     None => vec![1.0; r.len()],
                 };
-                (s.pairs[r].to_vec(), w)
+                Chunk {
+                    pairs: s.pairs[r].to_vec(),
+                    weights: w,
+                    cells: Vec::new(),
+                }
             }
             Pairs::Cells { grid, valid, keep } => {
                 let d = grid.axes().len();
                 let mut idx = [0usize; 4];
-                let (mut pairs, mut weights) = (Vec::new(), Vec::new());
+                let mut out = Chunk {
+                    pairs: Vec::new(),
+                    weights: Vec::new(),
+                    cells: Vec::new(),
+                };
                 let end = ((k + 1) * per).min(valid.len());
                 for (f, _) in valid[k * per..end]
                     .iter()
@@ -712,15 +722,39 @@ impl Pairs<'_> {
                 {
                     grid.unflatten(f, &mut idx[..d]);
                     let (wi, wo) = grid.cell_dirs(&idx[..d]);
-                    if keep(wi, wo) {
-                        pairs.push((wi, wo));
-                        weights.push(grid.cell_measure(&idx[..d]));
+                    // As in [`SampleSet::cells`]: a valid cell below the horizon is no pair
+                    // of the BRDF's domain.
+                    if wi.z > 0.0 && wo.z > 0.0 && keep(wi, wo) {
+                        out.pairs.push((wi, wo));
+                        out.weights.push(grid.cell_measure(&idx[..d]));
+                        out.cells.push(f);
                     }
                 }
-                (pairs, weights)
+                out
             }
         }
     }
+
+    /// The table behind `brdf` when these are the cells of its own grid: its valid samples
+    /// are its values there (a table evaluated at its nodes interpolates with the weights of
+    /// indices computed from angles, 1.5 M times for a MERL-grid check).
+    fn own_table<'a>(&self, brdf: &'a dyn Brdf) -> Option<&'a Table> {
+        match self {
+            Pairs::Set(_) => None,
+            Pairs::Cells { grid, .. } => brdf
+                .as_any()
+                .and_then(|a| a.downcast_ref::<Table>())
+                .filter(|t| t.grid() == *grid && t.channels().len() == brdf.channels().len()),
+        }
+    }
+}
+
+/// One chunk of a streamed check.
+struct Chunk {
+    pairs: Vec<(Vec3, Vec3)>,
+    weights: Vec<f64>,
+    /// Flat cell indices of the pairs (a grid's cells), else empty.
+    cells: Vec<usize>,
 }
 
 /// Makes chunks `0..n` in parallel, a few at a time, and hands them to `sink` in order: what
@@ -753,10 +787,20 @@ fn check_pairs(
     let c = reference.channels().len();
     let per = (CHUNK_VALUES / c.max(1)).max(1);
     let chunks = pairs.chunks(per);
-    let eval = |brdf: &dyn Brdf, set: &[(Vec3, Vec3)]| {
-        let mut v = vec![0.0; set.len() * c];
-        for (j, &(wi, wo)) in set.iter().enumerate() {
-            brdf.eval(wi, wo, &mut v[j * c..(j + 1) * c]);
+    let (own_reference, own_candidate) = (pairs.own_table(reference), pairs.own_table(candidate));
+    let eval = |brdf: &dyn Brdf, own: Option<&Table>, chunk: &Chunk| {
+        let mut v = vec![0.0; chunk.pairs.len() * c];
+        for (j, &(wi, wo)) in chunk.pairs.iter().enumerate() {
+            let out = &mut v[j * c..(j + 1) * c];
+            match own {
+                Some(t) if t.valid()[chunk.cells[j]] => {
+                    let cell = chunk.cells[j];
+                    for (o, &x) in out.iter_mut().zip(&t.data()[cell * c..(cell + 1) * c]) {
+                        *o = x as f64;
+                    }
+                }
+                _ => brdf.eval(wi, wo, out),
+            }
         }
         v
     };
@@ -767,10 +811,14 @@ fn check_pairs(
     for_each_chunk(
         chunks,
         |k| {
-            let (set, w) = pairs.chunk(k, per);
-            let f = eval(reference, &set);
-            let core = set.iter().filter(|&&(wi, wo)| in_core(wi, wo)).count();
-            (w, f, core)
+            let chunk = pairs.chunk(k, per);
+            let f = eval(reference, own_reference, &chunk);
+            let core = chunk
+                .pairs
+                .iter()
+                .filter(|&&(wi, wo)| in_core(wi, wo))
+                .count();
+            (chunk.weights, f, core)
         },
         |(w, f, core)| {
             n += w.len();
@@ -795,8 +843,12 @@ fn check_pairs(
     for_each_chunk(
         chunks,
         |k| {
-            let (set, w) = pairs.chunk(k, per);
-            let (f, g) = (eval(reference, &set), eval(candidate, &set));
+            let chunk = pairs.chunk(k, per);
+            let (f, g) = (
+                eval(reference, own_reference, &chunk),
+                eval(candidate, own_candidate, &chunk),
+            );
+            let (set, w) = (chunk.pairs, chunk.weights);
             let terms: Vec<Term> = (0..set.len() * c)
                 .map(|v| Term::new(f[v], g[v], set[v / c].0.z, eps[0], eps[1 + v % c]))
                 .collect();
@@ -1318,9 +1370,15 @@ mod tests {
         use crate::model::Model;
         use crate::table::{Interp, InterpolatedTable};
         // A lossy candidate (f16 of a sharp lobe) against the model, on a θmax grid so that
-        // the domain restriction is part of the stream, and on a full one.
+        // the domain restriction is part of the stream, on a full one, and on one extended
+        // below the horizon (valid cells there are no pairs of the set). The candidate is a
+        // table on the set's grid, whose values the stream reads from its samples.
         let m = Model::parse("lambert:albedo=0.2+ggx:alpha=0.15,fresnel=au").unwrap();
-        for spec in ["halfdiff3:18x20x24,theta-max=70", "spherical4:9x10x9x12"] {
+        for spec in [
+            "halfdiff3:18x20x24,theta-max=70",
+            "spherical4:9x10x9x12",
+            "halfdiff3:18x20x24,horizon=extend",
+        ] {
             let g = parse_grid_spec(spec).unwrap();
             let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
             // Values the metrics must count: negative ones and large errors.

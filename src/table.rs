@@ -1892,6 +1892,11 @@ impl<T: std::borrow::Borrow<Table> + Send + Sync> Brdf for InterpolatedTable<T> 
             self.t().provenance().source
         )
     }
+    /// The table behind the lookup: tabulation on the table's own grid copies its samples
+    /// instead of interpolating at every node.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
+        Some(self.t())
+    }
 }
 
 #[cfg(test)]

@@ -127,6 +127,15 @@ pub fn tabulate_into(
     tabulate_generic(src, grid, opts, data, valid, Cells::All)
 }
 
+/// The stored table behind `src` when it lies on `grid` itself with the same channels: its
+/// valid samples are the values at the nodes (re-tabulating a MERL file on the MERL grid
+/// reads them instead of interpolating 1.5 M times).
+fn own_table<'a>(src: &'a dyn Brdf, grid: &Grid) -> Option<&'a Table> {
+    src.as_any()
+        .and_then(|a| a.downcast_ref::<Table>())
+        .filter(|t| t.grid() == grid && t.channels() == src.channels())
+}
+
 /// The cells the generic path fills.
 #[derive(Clone, Copy, PartialEq)]
 enum Cells {
@@ -165,6 +174,7 @@ fn tabulate_generic(
     let d = grid.axes().len();
     let done = std::sync::atomic::AtomicU64::new(0);
     let dirs = grid.cell_directions();
+    let own = own_table(src, grid);
     data.par_chunks_mut(CHUNK_CELLS * c)
         .zip(valid.par_chunks_mut(CHUNK_CELLS))
         .enumerate()
@@ -189,6 +199,15 @@ fn tabulate_generic(
                     continue;
                 };
                 if !src.in_domain(wi, wo) {
+                    continue;
+                }
+                // A valid node of the source's own grid: the interpolation there is the
+                // sample (up to the rounding of the node's indices, which this avoids).
+                if let Some(t) = own
+                    && t.valid()[cell]
+                {
+                    vals[j * c..(j + 1) * c].copy_from_slice(&t.data()[cell * c..(cell + 1) * c]);
+                    *okj = true;
                     continue;
                 }
                 src.eval(wi, wo, &mut buf);
@@ -348,6 +367,77 @@ mod tests {
             assert!(
                 below > cut.cells() / 20,
                 "{spec}: {below} cells below the horizon"
+            );
+        }
+    }
+
+    /// A table re-tabulated on its own grid is itself at its valid cells, bit for bit (the
+    /// samples are copied, not interpolated at nodes whose indices round); the domain rules
+    /// still apply (a valid cell below the horizon of a cut grid, as MERL files store, is
+    /// invalid), and an invalid cell takes the table's interpolation there, as any source's
+    /// value would be taken. On another grid the table is interpolated.
+    #[test]
+    fn a_table_tabulated_on_its_own_grid_is_itself() {
+        let m = crate::model::Model::parse("lambert:albedo=0.05+ggx:alpha=0.1,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:24x24x48,warp=sqrt/linear/linear,at=edge").unwrap();
+        let mut t = tabulate(&m, &g, &Default::default()).unwrap();
+        let (mut idx, c) = ([0usize; 3], 3);
+        let (mut below, mut holes) = (Vec::new(), Vec::new());
+        {
+            let (data, valid) = t.buffers_mut();
+            for cell in 0..g.cells() {
+                g.unflatten(cell, &mut idx);
+                let (wi, wo) = g.cell_dirs(&idx);
+                if wi.z <= 0.0 || wo.z <= 0.0 {
+                    // Below the horizon: valid, with a value only a copy would keep.
+                    valid[cell] = true;
+                    data[cell * c..(cell + 1) * c].fill(7.0);
+                    below.push(cell);
+                } else if cell % 97 == 5 {
+                    valid[cell] = false;
+                    holes.push(cell);
+                }
+            }
+        }
+        assert!(below.len() > 100 && holes.len() > 100);
+        let src = InterpolatedTable {
+            table: t.clone(),
+            interp: Interp::Linear,
+        };
+        assert!(own_table(&src, &g).is_some());
+        let again = tabulate(&src, &g, &Default::default()).unwrap();
+        let mut v = [0.0; 3];
+        for cell in 0..g.cells() {
+            let (a, b) = (
+                &t.data()[cell * c..(cell + 1) * c],
+                &again.data()[cell * c..(cell + 1) * c],
+            );
+            if below.contains(&cell) {
+                assert!(!again.valid()[cell], "cell {cell} below the horizon");
+            } else if holes.binary_search(&cell).is_ok() {
+                g.unflatten(cell, &mut idx);
+                let (wi, wo) = g.cell_dirs(&idx);
+                t.eval_into(wi, wo, Interp::Linear, &mut v);
+                let want: Vec<f32> = v.iter().map(|&x| x as f32).collect();
+                assert_eq!(b, &want[..], "hole {cell}");
+            } else {
+                assert!(again.valid()[cell], "cell {cell}");
+                assert_eq!(
+                    a.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    b.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    "cell {cell}"
+                );
+            }
+        }
+        // Another resolution, or the same axes with another interpolation space, is not the
+        // table's grid.
+        for other in [
+            "halfdiff3:24x24x47,warp=sqrt/linear/linear,at=edge",
+            "halfdiff3:24x24x48,warp=sqrt/linear/linear,at=edge,space=log:1e-3",
+        ] {
+            assert!(
+                own_table(&src, &parse_grid_spec(other).unwrap()).is_none(),
+                "{other}"
             );
         }
     }
