@@ -92,3 +92,63 @@ fn quick_bench_writes_parseable_files() {
         assert_well_formed_xml(&text, svg);
     }
 }
+
+/// `bench --zoo --zoo-random`: the drawn material is the library's (same seed, same spec),
+/// packed within both budgets and verified on the seeds asked for; with `--zoo-sampled` an
+/// isotropic model is packed as its MERL-grid table (`@merl`, the MERL grid kept) and
+/// measured against that table. Rows whose file misses a bound exit 1, so the exit status is
+/// the rows' own verdict.
+#[test]
+fn the_zoo_draws_seeded_random_materials_and_their_merl_tables() {
+    let want = brdfpack::plan::zoo::random_materials(1, 6).remove(0);
+    for sampled in [false, true] {
+        let mut cmd = Command::cargo_bin("brdfpack").unwrap();
+        cmd.args([
+            "bench",
+            "--zoo",
+            "--zoo-random",
+            "1",
+            "--zoo-random-seed",
+            "6",
+            "--zoo-filter",
+            "random",
+            "--zoo-seeds",
+            "2",
+            "--zoo-pairs",
+            "4000",
+            "--json",
+            "-q",
+        ]);
+        if sampled {
+            cmd.arg("--zoo-sampled");
+        }
+        let out = cmd.output().unwrap();
+        let text = String::from_utf8(out.stdout).unwrap();
+        let rows: Vec<serde_json::Value> = text
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(rows.len(), 2, "{text}");
+        let mut holds = true;
+        for (row, budget) in rows.iter().zip(["preview", "production"]) {
+            let name = if sampled {
+                format!("{}@merl", want.name)
+            } else {
+                want.name.clone()
+            };
+            assert_eq!(row["material"], name.as_str());
+            assert_eq!(row["spec"], want.spec.as_str());
+            assert_eq!(row["budget"], budget);
+            assert_eq!(row["seeds"], 2);
+            assert!(row["bytes"].as_u64().unwrap() > 100, "{row}");
+            let grid = row["grid"].as_str().unwrap();
+            assert_eq!(
+                grid.starts_with("halfdiff3 90x90x180 (warp sqrt/linear/linear"),
+                sampled,
+                "{grid}"
+            );
+            holds &= row["holds"].as_bool().unwrap();
+        }
+        assert_eq!(out.status.code(), Some(if holds { 0 } else { 1 }));
+    }
+}

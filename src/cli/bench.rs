@@ -70,6 +70,16 @@ pub struct BenchArgs {
     /// Planner effort (--zoo): fast, default or max.
     #[arg(long, default_value = "default", requires = "zoo")]
     pub zoo_effort: String,
+    /// Add N materials drawn from the zoo's families with random parameters (--zoo;
+    /// seeded by --zoo-random-seed, named randomSEED-K-FAMILY).
+    #[arg(long, default_value_t = 0, requires = "zoo")]
+    pub zoo_random: usize,
+    #[arg(long, default_value_t = 1, requires = "zoo")]
+    pub zoo_random_seed: u64,
+    /// Pack each isotropic reciprocal model as its MERL-grid table instead (a MERL-format
+    /// file of it, named NAME@merl), measured against that table (--zoo).
+    #[arg(long, requires = "zoo")]
+    pub zoo_sampled: bool,
 }
 
 /// Most worker threads `bench` starts: 100000 threads would spend minutes being created
@@ -215,8 +225,12 @@ fn run_zoo(a: &BenchArgs) -> anyhow::Result<i32> {
     if a.zoo_seeds == 0 || a.zoo_pairs == 0 || a.zoo_pairs > 10_000_000 {
         return Err(crate::Error::input("--zoo-seeds and --zoo-pairs must be in 1..=1e7").into());
     }
+    if a.zoo_random > 10_000 {
+        return Err(crate::Error::input("--zoo-random must be in 0..=10000").into());
+    }
     let mut materials: Vec<(String, String)> = zoo::materials()
         .into_iter()
+        .chain(zoo::random_materials(a.zoo_random, a.zoo_random_seed))
         .map(|m| (m.name, m.spec))
         .collect();
     let shared = a
@@ -255,8 +269,23 @@ fn run_zoo(a: &BenchArgs) -> anyhow::Result<i32> {
     ];
     let mut rows = Vec::new();
     for (name, spec) in &materials {
+        let (src, tabulated) = zoo::zoo_source(spec, a.zoo_sampled)?;
+        let name = if tabulated {
+            format!("{name}@merl")
+        } else {
+            name.clone()
+        };
         for (bname, budget) in &budgets {
-            let r = zoo::run_one(name, spec, bname, budget, effort, a.zoo_seeds, a.zoo_pairs)?;
+            let mut r = zoo::run_one(
+                &name,
+                src.as_ref(),
+                bname,
+                budget,
+                effort,
+                a.zoo_seeds,
+                a.zoo_pairs,
+            )?;
+            r.spec = spec.clone();
             say!(
                 "zoo: {name} {bname}: {} bytes, {:.2} s, holds {}",
                 r.bytes,
@@ -271,6 +300,17 @@ fn run_zoo(a: &BenchArgs) -> anyhow::Result<i32> {
     }
     if !a.json {
         print!("{}", zoo::to_markdown(&rows));
+        // What the drawn materials are (the fixed ones are listed in docs/compression.md).
+        let drawn: Vec<&(String, String)> = materials
+            .iter()
+            .filter(|(n, _)| n.starts_with("random"))
+            .collect();
+        if !drawn.is_empty() {
+            println!();
+            for (n, s) in drawn {
+                println!("- {n}: `{s}`");
+            }
+        }
         for (bname, _) in &budgets {
             if let Some(m) = zoo::median_bytes(&rows, bname) {
                 println!("\nmedian {bname} file: {m} bytes");
