@@ -440,11 +440,11 @@ struct Row<A: Copy> {
     /// Where `max_abs` and `max_rel` are (as the caller names a pair; `None` before any).
     max_abs_at: Option<A>,
     max_rel_at: Option<A>,
-    se: f64,
-    sre: f64,
+    se: SumOfSquares,
+    sre: SumOfSquares,
     sle: f64,
     sw: f64,
-    sre_core: f64,
+    sre_core: SumOfSquares,
     sw_core: f64,
     n_core: usize,
     top: Largest,
@@ -463,11 +463,11 @@ impl<A: Copy> Row<A> {
             },
             max_abs_at: None,
             max_rel_at: None,
-            se: 0.0,
-            sre: 0.0,
+            se: SumOfSquares::default(),
+            sre: SumOfSquares::default(),
             sle: 0.0,
             sw: 0.0,
-            sre_core: 0.0,
+            sre_core: SumOfSquares::default(),
             sw_core: 0.0,
             n_core: 0,
             top: Largest::new(Largest::needed(core_values, P99)),
@@ -486,8 +486,8 @@ impl<A: Copy> Row<A> {
             m.negative += 1;
         }
         let abs = t.abs;
-        self.se += w * abs * abs;
-        self.sre += w * rel * rel;
+        self.se.add(w, abs);
+        self.sre.add(w, rel);
         self.sle += w * t.log * t.log;
         self.sw += w;
         if abs > m.max_abs {
@@ -499,7 +499,7 @@ impl<A: Copy> Row<A> {
             self.max_rel_at = Some(at);
         }
         if core {
-            self.sre_core += w * rel * rel;
+            self.sre_core.add(w, rel);
             self.sw_core += w;
             self.n_core += 1;
             self.top.push(rel);
@@ -521,15 +521,53 @@ impl<A: Copy> Row<A> {
         m.max_abs_at = named(self.max_abs_at);
         m.max_rel_at = named(self.max_rel_at);
         if self.sw > 0.0 {
-            m.rmse = (self.se / self.sw).sqrt();
-            m.rel_rmse = (self.sre / self.sw).sqrt();
+            m.rmse = self.se.rms(self.sw);
+            m.rel_rmse = self.sre.rms(self.sw);
             m.log_rmse = (self.sle / self.sw).sqrt();
         }
         if self.sw_core > 0.0 {
-            m.rel_rmse_core = (self.sre_core / self.sw_core).sqrt();
+            m.rel_rmse_core = self.sre_core.rms(self.sw_core);
             m.p99_rel_core = self.top.nearest_rank(self.n_core, P99);
         }
         m
+    }
+}
+
+/// A weighted sum of squares for a root mean square that stays finite whenever its values
+/// are: Σ w·x² in plain f64 (the bits every report has always had), and beside it the same
+/// sum of (x·2⁻⁶⁰⁰)², used only when the plain one overflows. A relative error beyond 1e154
+/// (a candidate against a reference of 1e-300 or of 0, whose ε is that small) used to square
+/// to infinity and print `rel_rmse inf`; the root mean square of finite values is at most
+/// their maximum, so it is representable.
+#[derive(Clone, Copy, Debug, Default)]
+struct SumOfSquares {
+    plain: f64,
+    scaled: f64,
+}
+
+impl SumOfSquares {
+    /// 2⁻⁶⁰⁰: x·2⁻⁶⁰⁰ squared stays below 2⁸⁵⁰ for any finite x.
+    const DOWN: f64 = f64::from_bits((1023 - 600) << 52);
+    /// 2⁶⁰⁰.
+    const UP: f64 = f64::from_bits((1023 + 600) << 52);
+
+    #[inline]
+    fn add(&mut self, w: f64, x: f64) {
+        self.plain += w * x * x;
+        let s = x * Self::DOWN;
+        self.scaled += w * s * s;
+    }
+
+    /// sqrt(Σ w·x² / `sw`): the plain sum's when finite, else the scaled one's (values
+    /// small enough to vanish in it are negligible beside a sum over 1e308), never beyond
+    /// the largest finite f64.
+    fn rms(&self, sw: f64) -> f64 {
+        let r = (self.plain / sw).sqrt();
+        if r.is_finite() {
+            r
+        } else {
+            ((self.scaled / sw).sqrt() * Self::UP).min(f64::MAX)
+        }
     }
 }
 
@@ -601,9 +639,14 @@ fn from_order_key(k: u64) -> f64 {
 }
 
 /// |g − f| / (|f| + ε): the relative error of `rel_rmse`, `max_rel` and `p99_rel_core`.
+///
+/// A quotient beyond f64's range (a reference of 0 or nearly, where ε is as small as
+/// 2.2e-308, and a candidate that is not) is the largest finite f64, 1.7977e308, not
+/// infinity: reports hold no infinity (docs/metrics.md), and any bound still fails on it.
 #[inline]
 pub fn rel_error(f: f64, g: f64, eps: f64) -> f64 {
-    (g - f).abs() / (f.abs() + eps)
+    let r = (g - f).abs() / (f.abs() + eps);
+    if r == f64::INFINITY { f64::MAX } else { r }
 }
 
 /// ln(1 + g cos θi) − ln(1 + f cos θi): the cosine-weighted log error of `log_rmse`.
@@ -1113,6 +1156,11 @@ pub fn fmt_num(v: Option<f64>) -> String {
         None => "-".into(),
         Some(0.0) => "0".into(),
         Some(x) if x.fract() == 0.0 && x.abs() < 1e9 => format!("{x}"),
+        // f64::MAX (a relative error beyond f64's range, `rel_error`) rounds to 1.7977e308,
+        // which reads back as infinity: cut instead.
+        Some(x) if x.abs() >= 1.79765e308 => {
+            format!("{}1.7976e308", if x < 0.0 { "-" } else { "" })
+        }
         Some(x) => format!("{x:.4e}"),
     }
 }

@@ -150,6 +150,27 @@ pub fn check_thread_env() -> Result<()> {
     Ok(())
 }
 
+/// Starts the worker threads (rayon's global pool, `RAYON_NUM_THREADS` as rayon reads it)
+/// before any work. Left to rayon's first parallel call, a thread the machine cannot start
+/// (an address-space limit, `ulimit -v 65536`, refuses its stack) was a panic, exit 101;
+/// now an error (exit 1). A pool already built (a caller of the library) is kept.
+pub fn start_worker_threads() -> Result<()> {
+    match rayon::ThreadPoolBuilder::new().build_global() {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            // The only other failure is a pool built before: nothing to do then.
+            if rayon::current_num_threads() > 0 && e.to_string().contains("already") {
+                return Ok(());
+            }
+            Err(Error::Failure(format!(
+                "out of memory: the worker threads could not be started ({e}); no file written \
+                 (the address-space limit, `ulimit -v`, or the machine's memory is too small: \
+                 try RAYON_NUM_THREADS=1)"
+            )))
+        }
+    }
+}
+
 std::thread_local! {
     static FALLIBLE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }

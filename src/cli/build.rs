@@ -83,9 +83,10 @@ pub fn run(a: BuildArgs) -> anyhow::Result<i32> {
     if a.json {
         outln!("{json}");
     }
+    let verbose = a.verbose && !a.quiet;
     for m in &summary.materials {
         let written = m.outputs.iter().filter(|o| o.written).count();
-        if a.verbose {
+        if verbose {
             eprintln!(
                 "brdfpack: {:<20} {:<9} {:>7.3} s  {} of {} outputs written",
                 m.name,
@@ -95,14 +96,16 @@ pub fn run(a: BuildArgs) -> anyhow::Result<i32> {
                 m.outputs.len()
             );
         }
-        if !a.quiet
-            && let Some(e) = &m.error
+        // A failed material's error is printed under -q too ("nothing but errors"): with
+        // `build -q` (the Makefile and build.ninja of docs/build.md) a failure exited 2 with
+        // nothing on stderr.
+        if let Some(e) = &m.error
             && m.status == Status::Failed
         {
             eprintln!("brdfpack: material {}: {e}", m.name);
         }
     }
-    if a.verbose {
+    if verbose {
         eprintln!(
             "brdfpack: {} built, {} unchanged, {} failed in {:.3} s",
             summary.built, summary.unchanged, summary.failed, summary.seconds

@@ -240,6 +240,9 @@ pub fn main() -> i32 {
     if let Err(e) = crate::memory::check_thread_env() {
         return report_error(&e.into());
     }
+    if let Err(e) = crate::memory::start_worker_threads() {
+        return report_error(&e.into());
+    }
     crate::io::atomic::allow_binary_to_terminal(cli.force_terminal);
     let target = cli.command.report_target().cloned();
     let report_file = target

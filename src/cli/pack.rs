@@ -10,7 +10,7 @@ use crate::io::{atomic, native};
 use crate::model::Model;
 use crate::plan::budget::Budget;
 use crate::plan::estimate::{CONFIDENCE_Z, Estimate};
-use crate::plan::grids::default_grid_spec;
+use crate::plan::grids::default_grid;
 use crate::plan::pack::{GridAttempt, PackInput, PackSettings, plan};
 use crate::plan::rate::Effort;
 use crate::table::{Interp, InterpolatedTable};
@@ -210,7 +210,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     // A scene's θ range fixes the grid's stored domain (on the default grid when none given).
     let grid = match (grid, scene.theta_max_deg()) {
         (Some(g), _) => Some(scene.restrict_grid(&g)?),
-        (None, Some(_)) => Some(scene.restrict_grid(&default_grid(src.as_ref()))?),
+        (None, Some(_)) => Some(scene.restrict_grid(&default_grid(src.as_ref())?)?),
         (None, None) => None,
     };
     let (packed, held) = match &budget {
@@ -275,7 +275,10 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             )
         }
         None => {
-            let grid = grid.unwrap_or_else(|| default_grid(src.as_ref()));
+            let grid = match grid {
+                Some(g) => g,
+                None => default_grid(src.as_ref())?,
+            };
             let t0 = Instant::now();
             let table = tabulate(src.as_ref(), &grid, &tab_opts);
             bar.finish();
@@ -408,11 +411,6 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         }
     }
     Ok(0)
-}
-
-/// A grid that respects the source's symmetries at about MERL's resolution.
-fn default_grid(src: &dyn crate::brdf::Brdf) -> crate::grid::Grid {
-    parse_grid_spec(default_grid_spec(src)).expect("built-in grid specs parse")
 }
 
 fn human(r: &PackReport) -> String {

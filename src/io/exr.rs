@@ -176,7 +176,17 @@ pub fn to_bytes(table: &Table, opts: &ExrOptions) -> Result<Vec<u8>> {
             ExrSampleType::F32 => FlatSamples::F32(values.collect()),
             ExrSampleType::F16 => FlatSamples::F16(
                 values
-                    .map(|v| f16::from_f64(v as f64 * factor))
+                    .map(|v| {
+                        // 11 significant bits round a value within 2^-12 of f32's largest
+                        // (3.4028235e38) up to 2^128, which the reader's f32 cannot hold: such
+                        // a value is stored one f16 step toward 0 (the file read back).
+                        let h = f16::from_f64(v as f64 * factor);
+                        if ((h.to_f64() / factor) as f32).is_finite() {
+                            h
+                        } else {
+                            f16::from_bits(h.to_bits() - 1)
+                        }
+                    })
                     .collect::<Vec<_>>(),
             ),
         };

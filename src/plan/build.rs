@@ -12,7 +12,7 @@
 //! from `objects/`.
 
 use super::budget::Budget;
-use super::grids::default_grid_spec;
+use super::grids::default_grid;
 use super::manifest::{Manifest, Material, SceneRef};
 use super::pack::{PackInput, PackSettings, plan};
 use super::rate::Effort;
@@ -376,9 +376,7 @@ fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> 
     };
     let grid = match (grid, scene.theta_max_deg()) {
         (Some(g), _) => Some(scene.restrict_grid(&g)?),
-        (None, Some(_)) => {
-            Some(scene.restrict_grid(&parse_grid_spec(default_grid_spec(src.as_ref()))?)?)
-        }
+        (None, Some(_)) => Some(scene.restrict_grid(&default_grid(src.as_ref())?)?),
         (None, None) => None,
     };
     let budget = m
@@ -410,7 +408,7 @@ fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> 
         None => {
             let grid = match grid {
                 Some(g) => g,
-                None => parse_grid_spec(default_grid_spec(src.as_ref()))?,
+                None => default_grid(src.as_ref())?,
             };
             (tabulate(src.as_ref(), &grid, &options)?, None)
         }

@@ -112,6 +112,33 @@ enum Draw {
     },
 }
 
+/// The smallest share of uniform pairs a stored domain must hold for the planner's sets,
+/// drawn by rejection ([`Draw::FilledIn`]): 1/64, θmax ≥ 29° (θmax = 30°, 1/56: 5 s for
+/// `pack --max-error preview --effort fast` on a small grid).
+pub const MIN_DOMAIN_SHARE: f64 = 1.0 / 64.0;
+
+/// Refuses (bad input) a stored domain θi, θo ≤ θmax that holds less than
+/// [`MIN_DOMAIN_SHARE`] of the uniform pairs: the estimation set is drawn by rejection, and
+/// θmax = 10° (a share of 2.3e-4) took minutes, 1e-9° forever (issue 20, `pack --grid
+/// halfdiff3:4,theta-max=1e-9`). A uniform direction has cos θ uniform in [0, 1), so the
+/// share is (1 − cos θmax)², with [`Grid::in_domain`]'s slack.
+pub fn sampleable_domain(domain: &Grid) -> Result<()> {
+    let Some(t) = domain.theta_max() else {
+        return Ok(());
+    };
+    let share = (1.0 - (t.cos() - 1e-12).max(0.0)).powi(2);
+    if share >= MIN_DOMAIN_SHARE {
+        return Ok(());
+    }
+    let least = (1.0 - MIN_DOMAIN_SHARE.sqrt()).acos().to_degrees();
+    Err(crate::Error::input(format!(
+        "the stored domain θi, θo ≤ {}° holds {share:.2e} of uniform direction pairs, too few \
+         to draw the error budget's sample sets from (at least {MIN_DOMAIN_SHARE:.4} of them: \
+         θmax ≥ {least:.1}°); give a larger theta-max, or a --codec instead of a budget",
+        t.to_degrees()
+    )))
+}
+
 impl Draw {
     /// The pairs, in the set's order, one at a time.
     fn pairs(&self) -> Box<dyn Iterator<Item = (Vec3, Vec3)> + '_> {
@@ -315,17 +342,21 @@ impl ReferenceSet {
     /// [`ReferenceSet::new`] inside a table's stored domain (θi, θo ≤ θmax of `domain`):
     /// uniform pairs drawn until `n` fall inside it, so that the estimate has as many pairs
     /// as on a full hemisphere. `None`: the whole hemisphere.
-    pub fn new_in(source: &dyn Brdf, n: usize, domain: Option<&Grid>) -> ReferenceSet {
+    ///
+    /// The pairs are drawn by rejection: a domain holding few uniform pairs is refused
+    /// ([`sampleable_domain`]) rather than drawn for hours.
+    pub fn new_in(source: &dyn Brdf, n: usize, domain: Option<&Grid>) -> Result<ReferenceSet> {
         let Some(g) = domain.filter(|g| g.theta_max().is_some()) else {
-            return ReferenceSet::new(source, n);
+            return Ok(ReferenceSet::new(source, n));
         };
-        ReferenceSet::drawn(
+        sampleable_domain(g)?;
+        Ok(ReferenceSet::drawn(
             source,
             Draw::FilledIn {
                 n,
                 domain: Box::new(g.clone()),
             },
-        )
+        ))
     }
 
     /// [`ReferenceSet::uniform`] restricted to a table's stored domain, as `check` restricts
@@ -793,7 +824,7 @@ mod tests {
         ] {
             let g = parse_grid_spec(spec).unwrap();
             let mut t = tabulate(&m, &g, &Default::default()).unwrap();
-            let reference = ReferenceSet::new_in(&m, 6000, Some(&g));
+            let reference = ReferenceSet::new_in(&m, 6000, Some(&g)).unwrap();
             let check = ReferenceSet::uniform_in(&m, 3000, 7, Some(&g));
             let first = ErrorEstimator::new(&t, &reference, Some(&check), 3000).unwrap();
             let mut previous = first;

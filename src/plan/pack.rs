@@ -11,13 +11,13 @@
 
 use super::budget::Budget;
 use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
-use super::grids::{axis_curvature, default_grid_spec, reallocation};
+use super::grids::{axis_curvature, default_grid, reallocation};
 use super::rate::{
     Again, Effort, Encoded, Progress, RateOutcome, accepts, encode_within, encode_within_lending,
     prepare_coefficients,
 };
 use crate::brdf::Brdf;
-use crate::grid::{Grid, InterpSpace, InterpWeight, Quantity, Warp, parse_grid_spec};
+use crate::grid::{Grid, InterpSpace, InterpWeight, Quantity, Warp};
 use crate::table::Table;
 use crate::tabulate::{TabulateOptions, tabulate};
 use crate::{Error, Result};
@@ -170,7 +170,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     let source = held.get();
     let (start, refine) = match grid {
         Some(g) => (g, false),
-        None => (parse_grid_spec(default_grid_spec(source))?, true),
+        None => (default_grid(source)?, true),
     };
     let t = Instant::now();
     progress("evaluating the source on the estimation and check sets");
@@ -178,7 +178,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     // A table stored up to θmax is measured inside that domain only, as `check` measures it:
     // beyond it the table holds no values, and errors there are errors no one asked for.
     let domain: Option<Grid> = Some(start.clone()).filter(|g| g.theta_max().is_some());
-    let reference = ReferenceSet::new_in(source, pairs, domain.as_ref());
+    let reference = ReferenceSet::new_in(source, pairs, domain.as_ref())?;
     let check = ReferenceSet::uniform_in(
         source,
         settings.check_samples,
@@ -572,7 +572,7 @@ fn plan_table(
             interp: crate::table::Interp::Linear,
         };
         (
-            ReferenceSet::new_in(&source, pairs, domain.as_ref()),
+            ReferenceSet::new_in(&source, pairs, domain.as_ref())?,
             ReferenceSet::uniform_in(
                 &source,
                 settings.check_samples,
@@ -753,6 +753,7 @@ fn no_grid_message(budget: &Budget, attempts: &[GridAttempt]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::grid::parse_grid_spec;
     use crate::model::Model;
     use crate::table::{Interp, InterpolatedTable};
     use std::sync::atomic::{AtomicUsize, Ordering};

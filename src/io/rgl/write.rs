@@ -567,8 +567,18 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
         FieldData::u8("jacobian", vec![1], &[1]),
         FieldData::u8("valid", vec![valid.len()], &valid),
     ];
+    let bytes = encode(&fields);
+    // The reader's checks (finite fields, a peak f32 storage holds: `check_peak`) on what was
+    // made: a source of values near f32's limit (a table of 3e38) used to give a file that
+    // its own reader, and Mitsuba's float32 evaluation, refuse. It is bad input here instead.
+    if let Err(e) = super::RglBsdf::from_bytes(&bytes, "the RGL file") {
+        return Err(Error::input(format!(
+            "{}: an RGL .bsdf cannot hold its values: the file would not read back ({e})",
+            src.describe()
+        )));
+    }
     Ok(RglWritten {
-        bytes: encode(&fields),
+        bytes,
         description,
         iterations,
         ndf_change,
