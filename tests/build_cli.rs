@@ -347,3 +347,42 @@ fn make_with_depfiles() {
         ["unchanged", "built", "unchanged"]
     );
 }
+
+/// An output that is the material's own source is refused before anything is written
+/// (exit 2, the source kept byte for byte): written, it would replace the input with its
+/// re-encoding, lossy under a codec, which the next build would then read as the source.
+/// Also through another spelling of the same file (`./`).
+#[test]
+fn an_output_that_is_the_materials_source_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    brdfpack()
+        .current_dir(d)
+        .args([
+            "tabulate",
+            "ggx:alpha=0.3,fresnel=au",
+            "--grid",
+            "halfdiff3:16x16x32",
+            "--codec",
+            "lossless",
+            "-o",
+            "src.bpk",
+        ])
+        .assert()
+        .success();
+    let before = std::fs::read(d.join("src.bpk")).unwrap();
+    for out in ["src.bpk", "./src.bpk"] {
+        let manifest = format!(
+            "[[material]]\nname = \"self\"\nsource = \"src.bpk\"\ncodec = \"dct:step=0.5\"\n\
+             outputs = [\"{out}\"]\n"
+        );
+        std::fs::write(d.join("m.toml"), manifest).unwrap();
+        brdfpack()
+            .current_dir(d)
+            .args(["build", "m.toml", "-q"])
+            .assert()
+            .code(2)
+            .stderr(predicates::str::contains("which the material reads"));
+        assert_eq!(std::fs::read(d.join("src.bpk")).unwrap(), before, "{out}");
+    }
+}

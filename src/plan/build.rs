@@ -219,6 +219,7 @@ fn build_material(m: &Material, opts: &BuildOptions) -> MaterialResult {
             Some(SceneRef::File(p)) => Scene::load(p, &mut reads)?,
         };
         source_reads(&m.source, &mut reads)?;
+        refuse_outputs_that_are_inputs(m, &reads)?;
         key = content_key(m, &scene, &reads)?;
         let entry_path = opts
             .cache_dir
@@ -293,6 +294,28 @@ fn source_reads(spec: &str, reads: &mut ReadSet) -> Result<()> {
     }
     // Not a model and no file: opening it gives the error that says which.
     Source::open(spec).map(|_| ())
+}
+
+/// Refuses (bad input) a material one of whose outputs is a file it reads (its source, a
+/// `@spec.json`, an optical-constant CSV, its scene file): writing it would replace the
+/// input with its own encoding, lossy under a codec or a budget, before the next build reads
+/// it again. Compared as the file system resolves them (symbolic links, `./`, `..`).
+fn refuse_outputs_that_are_inputs(m: &Material, reads: &ReadSet) -> Result<()> {
+    let same = |a: &Path, b: &Path| match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    for out in &m.outputs {
+        if let Some(input) = reads.paths().find(|r| same(out, r)) {
+            return Err(Error::input(format!(
+                "material {:?}: output {} is {}, which the material reads; writing it would                  replace its own input (choose another output path)",
+                m.name,
+                crate::text::sanitize(&out.display().to_string()),
+                crate::text::sanitize(&input.display().to_string())
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The content key: tool version, options and every read file's name and bytes.
