@@ -1435,3 +1435,54 @@ fn packing_a_merl_file_peaks_within_128_mb() {
     println!("pack gold-metallic-paint.binary: peak RSS {kib} KiB");
     assert!(kib <= 125_000, "pack: peak RSS {kib} KiB > 128 MB");
 }
+
+/// A θmax table packed on a grid the user gives without θmax is measured within the table's
+/// stored domain, as `check` measures it: the planner once compared the whole hemisphere with
+/// a source that has no values beyond 60° and refused every budget (exit 1, p99_rel_core
+/// 3e4). The written file then holds the budget against the table in `check`, which samples
+/// the same domain and says so.
+#[test]
+fn a_theta_max_table_packed_on_a_full_grid_is_measured_within_its_domain() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    tabulate(
+        d,
+        "t60.bpk",
+        "ggx:alpha=0.3,fresnel=au",
+        "halfdiff3:32x32x64,theta-max=60",
+        &["--codec", "lossless"],
+    );
+    let o = run(
+        d,
+        &[
+            "pack",
+            "t60.bpk",
+            "--grid",
+            "halfdiff3:32x32x64",
+            "--max-error",
+            "preview",
+            "-o",
+            "p.bpk",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let o = run(
+        d,
+        &[
+            "check",
+            "p.bpk",
+            "--against",
+            "t60.bpk",
+            "--samples",
+            "100000",
+            "--uniform-only",
+            "--max-log-rmse",
+            "0.01",
+            "--max-p99-rel-core",
+            "0.2",
+        ],
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(0), "{out}{}", stderr(&o));
+    assert!(out.contains("θi, θo ≤ 60° only"), "{out}");
+}

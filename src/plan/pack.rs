@@ -176,8 +176,18 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     progress("evaluating the source on the estimation and check sets");
     let pairs = estimate_pairs(settings.effort);
     // A table stored up to θmax is measured inside that domain only, as `check` measures it:
-    // beyond it the table holds no values, and errors there are errors no one asked for.
-    let domain: Option<Grid> = Some(start.clone()).filter(|g| g.theta_max().is_some());
+    // beyond it the table holds no values, and errors there are errors no one asked for. So
+    // is a source seen within θmax on a grid that covers more (a user's `--grid` without
+    // θmax for a θmax table): beyond the source's domain there is nothing to compare with.
+    let domain: Option<Grid> = match (start.theta_max(), source.theta_max_deg()) {
+        (Some(_), _) => Some(start.clone()),
+        (None, Some(t)) => {
+            let mut d = start.desc();
+            d.theta_max_deg = Some(t);
+            Some(Grid::from_desc(&d)?)
+        }
+        (None, None) => None,
+    };
     let reference = ReferenceSet::new_in(source, pairs, domain.as_ref())?;
     let check = ReferenceSet::uniform_in(
         source,
