@@ -778,16 +778,11 @@ impl Pairs<'_> {
         }
     }
 
-    /// The table behind `brdf` when these are the cells of its own grid: its valid samples
-    /// are its values there (a table evaluated at its nodes interpolates with the weights of
-    /// indices computed from angles, 1.5 M times for a MERL-grid check).
+    /// The table behind `brdf` when these are the cells of its own grid ([`Table::behind`]).
     fn own_table<'a>(&self, brdf: &'a dyn Brdf) -> Option<&'a Table> {
         match self {
             Pairs::Set(_) => None,
-            Pairs::Cells { grid, .. } => brdf
-                .as_any()
-                .and_then(|a| a.downcast_ref::<Table>())
-                .filter(|t| t.grid() == *grid && t.channels().len() == brdf.channels().len()),
+            Pairs::Cells { grid, .. } => Table::behind(brdf, grid),
         }
     }
 }

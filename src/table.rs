@@ -73,6 +73,16 @@ pub struct Table {
 }
 
 impl Table {
+    /// The table behind `brdf` (a table source: `Brdf::as_any` of an [`InterpolatedTable`]
+    /// is its table) when it lies on `grid` itself: its valid samples are then its values at
+    /// the grid's nodes, which tabulation and `check`'s `cells` set read instead of
+    /// interpolating at each node.
+    pub fn behind<'a>(brdf: &'a dyn Brdf, grid: &Grid) -> Option<&'a Table> {
+        brdf.as_any()
+            .and_then(|a| a.downcast_ref::<Table>())
+            .filter(|t| t.grid() == grid)
+    }
+
     /// Builds a table, checking that the sizes agree and every valid value is finite.
     pub fn new(
         grid: Grid,

@@ -127,15 +127,6 @@ pub fn tabulate_into(
     tabulate_generic(src, grid, opts, data, valid, Cells::All)
 }
 
-/// The stored table behind `src` when it lies on `grid` itself with the same channels: its
-/// valid samples are the values at the nodes (re-tabulating a MERL file on the MERL grid
-/// reads them instead of interpolating 1.5 M times).
-fn own_table<'a>(src: &'a dyn Brdf, grid: &Grid) -> Option<&'a Table> {
-    src.as_any()
-        .and_then(|a| a.downcast_ref::<Table>())
-        .filter(|t| t.grid() == grid && t.channels() == src.channels())
-}
-
 /// The cells the generic path fills.
 #[derive(Clone, Copy, PartialEq)]
 enum Cells {
@@ -174,7 +165,8 @@ fn tabulate_generic(
     let d = grid.axes().len();
     let done = std::sync::atomic::AtomicU64::new(0);
     let dirs = grid.cell_directions();
-    let own = own_table(src, grid);
+    // Re-tabulating a MERL file on the MERL grid reads its samples.
+    let own = Table::behind(src, grid);
     data.par_chunks_mut(CHUNK_CELLS * c)
         .zip(valid.par_chunks_mut(CHUNK_CELLS))
         .enumerate()
@@ -404,7 +396,7 @@ mod tests {
             table: t.clone(),
             interp: Interp::Linear,
         };
-        assert!(own_table(&src, &g).is_some());
+        assert!(Table::behind(&src, &g).is_some());
         let again = tabulate(&src, &g, &Default::default()).unwrap();
         let mut v = [0.0; 3];
         for cell in 0..g.cells() {
@@ -436,7 +428,7 @@ mod tests {
             "halfdiff3:24x24x48,warp=sqrt/linear/linear,at=edge,space=log:1e-3",
         ] {
             assert!(
-                own_table(&src, &parse_grid_spec(other).unwrap()).is_none(),
+                Table::behind(&src, &parse_grid_spec(other).unwrap()).is_none(),
                 "{other}"
             );
         }

@@ -42,7 +42,15 @@ pub fn default_grid_spec(src: &dyn Brdf) -> &'static str {
 /// source (0 beyond its domain) then measured as a relative error of 10⁴ — `pack t60.bpk`
 /// of a table `tabulate` wrote refused every budget after 35 s of trying finer grids.
 pub fn default_grid(src: &dyn Brdf) -> crate::Result<crate::grid::Grid> {
-    let grid = crate::grid::parse_grid_spec(default_grid_spec(src))?;
+    within_source_domain(crate::grid::parse_grid_spec(default_grid_spec(src))?, src)
+}
+
+/// `grid` stored only up to `src`'s θmax when the source has one (the smaller of the two
+/// limits; `check` compares within both domains the same way).
+pub fn within_source_domain(
+    grid: crate::grid::Grid,
+    src: &dyn Brdf,
+) -> crate::Result<crate::grid::Grid> {
     let Some(t) = src.theta_max_deg() else {
         return Ok(grid);
     };

@@ -11,7 +11,7 @@
 
 use super::budget::Budget;
 use super::estimate::{ESTIMATE_PAIRS, ErrorEstimator, Estimate, ReferenceSet};
-use super::grids::{axis_curvature, default_grid, reallocation};
+use super::grids::{axis_curvature, default_grid, reallocation, within_source_domain};
 use super::rate::{
     Again, Effort, Encoded, Progress, RateOutcome, accepts, encode_within, encode_within_lending,
     prepare_coefficients,
@@ -179,15 +179,8 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     // beyond it the table holds no values, and errors there are errors no one asked for. So
     // is a source seen within θmax on a grid that covers more (a user's `--grid` without
     // θmax for a θmax table): beyond the source's domain there is nothing to compare with.
-    let domain: Option<Grid> = match (start.theta_max(), source.theta_max_deg()) {
-        (Some(_), _) => Some(start.clone()),
-        (None, Some(t)) => {
-            let mut d = start.desc();
-            d.theta_max_deg = Some(t);
-            Some(Grid::from_desc(&d)?)
-        }
-        (None, None) => None,
-    };
+    let domain: Option<Grid> =
+        Some(within_source_domain(start.clone(), source)?).filter(|g| g.theta_max().is_some());
     let reference = ReferenceSet::new_in(source, pairs, domain.as_ref())?;
     let check = ReferenceSet::uniform_in(
         source,
