@@ -1248,7 +1248,8 @@ fn hostile_values(run: &mut Run) {
         );
     }
     // Tiny grids and stored domains: θmax = 1e-9° made the planner's rejection sampling of
-    // its estimation set run forever (10°: minutes); now exit 2 below 29°.
+    // its estimation set run forever (10°: minutes); the set is now drawn inside the domain
+    // (plan::estimate::stratified_pairs), so every θmax plans in seconds.
     for g in [
         "halfdiff3:1x1x1",
         "spherical4:1x1x1x1",
@@ -1312,7 +1313,9 @@ fn hostile_values(run: &mut Run) {
             ],
         )
         .shell(T),
-        BAD_INPUT,
+        // A budget the 8×8×16 grid cannot meet over its domain (exit 1, the grid's own
+        // error named); exit 2 before the estimation set was drawn inside the domain.
+        Allowed(&[1]),
     );
 }
 

@@ -336,7 +336,7 @@ fn run_budget(
     }
     writeln!(
         r,
-        "        {} at most on any independent uniform set of {} pairs (3σ upper values from {} pairs)",
+        "        {} at most on any independent uniform set of {} pairs (3σ upper values from {} stratified pairs)",
         values(&e.estimate.upper),
         a.samples,
         planned.estimate_samples

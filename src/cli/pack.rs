@@ -462,7 +462,7 @@ fn human(r: &PackReport) -> String {
         }
         let _ = writeln!(
             s,
-            "              {} at most on any independent uniform set of {} pairs ({}σ upper values from {} pairs)",
+            "              {} at most on any independent uniform set of {} pairs ({}σ upper values from {} stratified pairs)",
             values(&b.file.upper),
             b.samples,
             b.confidence_z,

@@ -20,6 +20,13 @@ pub struct Budget {
 }
 
 impl Budget {
+    /// Whether a bound is on a metric relative to ε (`rel_rmse`, `rel_rmse_core`,
+    /// `p99_rel_core`, `max_rel`): the codec's curve ε then follows the ε those bounds are
+    /// measured against.
+    pub fn bounds_relative(&self) -> bool {
+        self.bounds.iter().any(|(k, _)| k.contains("rel"))
+    }
+
     /// Parses `log_rmse=0.01[,p99_rel_core=0.2,...]`, or a named budget: `preview`
     /// (log_rmse ≤ 0.01, p99_rel_core ≤ 0.2) or `production` (log_rmse ≤ 0.002,
     /// p99_rel_core ≤ 0.05, the default of `pack`).

@@ -4,9 +4,10 @@
 //! A metric measured on one seeded set is a random variable: on heavy-tailed errors (a few
 //! pairs near a specular peak carry a large share of the squared error) a file that meets
 //! `log_rmse ≤ 0.002` on the set it was tuned on can miss it on the next seed. The estimator
-//! therefore measures every candidate on its own, larger set (drawn from a seed no user set
-//! uses) and states an upper confidence value of each metric for an independent set of
-//! `for_samples` pairs:
+//! therefore measures every candidate on its own, larger set (uniform in solid angle and
+//! stratified: scrambled Sobol points of a seed no user set uses, so that rare regions where a
+//! codec's largest errors sit get their share) and states an upper confidence value of each
+//! metric for an independent set of `for_samples` pairs:
 //!
 //! - mean-square metrics (`rmse`, `rel_rmse`, `log_rmse`, `rel_rmse_core`): with s_p the
 //!   pair's squared error averaged over channels, m = mean(s_p) and v its variance over the
@@ -99,11 +100,12 @@ pub struct ReferenceSet {
 /// How a [`ReferenceSet`]'s pairs are drawn (deterministic: the same pairs every time).
 #[derive(Clone)]
 enum Draw {
-    /// `n` uniform pairs from `seed`.
+    /// `n` uniform pairs from `seed` (a user's check set).
     Uniform { n: usize, seed: u64 },
-    /// Uniform pairs from [`ESTIMATE_SEED`] and the seeds after it until `n` fall inside the
-    /// stored domain of `domain`.
-    FilledIn { n: usize, domain: Box<Grid> },
+    /// The estimation set: `n` pairs uniform in solid angle, stratified over the pair space
+    /// (the scrambled Sobol points of [`ESTIMATE_SEED`], [`stratified_pairs`]), inside the
+    /// stored domain θi, θo ≤ θmax of `domain` when there is one.
+    Stratified { n: usize, domain: Option<Box<Grid>> },
     /// `n` uniform pairs from `seed`, those inside the stored domain of `domain` kept.
     KeptIn {
         n: usize,
@@ -112,31 +114,20 @@ enum Draw {
     },
 }
 
-/// The smallest share of uniform pairs a stored domain must hold for the planner's sets,
-/// drawn by rejection ([`Draw::FilledIn`]): 1/64, θmax ≥ 29° (θmax = 30°, 1/56: 5 s for
-/// `pack --max-error preview --effort fast` on a small grid).
-pub const MIN_DOMAIN_SHARE: f64 = 1.0 / 64.0;
-
-/// Refuses (bad input) a stored domain θi, θo ≤ θmax that holds less than
-/// [`MIN_DOMAIN_SHARE`] of the uniform pairs: the estimation set is drawn by rejection, and
-/// θmax = 10° (a share of 2.3e-4) took minutes, 1e-9° forever (issue 20, `pack --grid
-/// halfdiff3:4,theta-max=1e-9`). A uniform direction has cos θ uniform in [0, 1), so the
-/// share is (1 − cos θmax)², with [`Grid::in_domain`]'s slack.
-pub fn sampleable_domain(domain: &Grid) -> Result<()> {
-    let Some(t) = domain.theta_max() else {
-        return Ok(());
+/// Pairs uniform in solid angle with cos θi, cos θo in [`z_min`, 1], from the scrambled
+/// Sobol points of `seed`: (u₀, u₁, u₂, u₃) ↦ cos θi = 1 − u₀(1 − z_min), φi = 2πu₁, and so
+/// for wo. Each coordinate of the first 2^m points fills its 2^m strata once, and every
+/// region of the pair space (a corner beside the horizon holding 1e-5 of the pairs) gets its
+/// share, where a pseudo-random set of 131,072 pairs has none one time in four.
+pub fn stratified_pairs(seed: u64, z_min: f64) -> impl Iterator<Item = (Vec3, Vec3)> {
+    let z_min = z_min.clamp(0.0, 1.0);
+    let dir = move |u: f64, v: f64| {
+        let z = 1.0 - u * (1.0 - z_min);
+        let phi = 2.0 * crate::math::PI * v;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        Vec3::new(r * phi.cos(), r * phi.sin(), z)
     };
-    let share = (1.0 - (t.cos() - 1e-12).max(0.0)).powi(2);
-    if share >= MIN_DOMAIN_SHARE {
-        return Ok(());
-    }
-    let least = (1.0 - MIN_DOMAIN_SHARE.sqrt()).acos().to_degrees();
-    Err(crate::Error::input(format!(
-        "the stored domain θi, θo ≤ {}° holds {share:.2e} of uniform direction pairs, too few \
-         to draw the error budget's sample sets from (at least {MIN_DOMAIN_SHARE:.4} of them: \
-         θmax ≥ {least:.1}°); give a larger theta-max, or a --codec instead of a budget",
-        t.to_degrees()
-    )))
+    crate::math::sobol::Sobol4::new(seed).map(move |u| (dir(u[0], u[1]), dir(u[2], u[3])))
 }
 
 impl Draw {
@@ -144,18 +135,19 @@ impl Draw {
     fn pairs(&self) -> Box<dyn Iterator<Item = (Vec3, Vec3)> + '_> {
         match self {
             Draw::Uniform { n, seed } => Box::new(uniform_pairs(*seed).take(*n)),
-            // Rounds of 2n candidates from consecutive seeds, the first n inside the domain;
-            // a domain of θmax > 0 always fills.
-            Draw::FilledIn { n, domain } => {
-                let n = *n;
+            // Drawn inside the domain's θmax (cos θ uniform in [cos θmax, 1] is solid angle
+            // restricted to θ ≤ θmax); the few outside the domain's own test are skipped.
+            Draw::Stratified { n, domain } => {
+                let z_min = domain
+                    .as_ref()
+                    .and_then(|g| g.theta_max())
+                    .map_or(0.0, |t| t.cos());
                 Box::new(
-                    (0u64..)
-                        .flat_map(move |round| {
-                            uniform_pairs(ESTIMATE_SEED.wrapping_add(round))
-                                .take(2 * n.max(1))
-                                .filter(move |&(wi, wo)| domain.in_domain(wi, wo))
+                    stratified_pairs(ESTIMATE_SEED, z_min)
+                        .filter(move |&(wi, wo)| {
+                            domain.as_ref().is_none_or(|g| g.in_domain(wi, wo))
                         })
-                        .take(n),
+                        .take(*n),
                 )
             }
             Draw::KeptIn { n, seed, domain } => Box::new(
@@ -169,7 +161,7 @@ impl Draw {
     fn set(&self) -> SampleSet {
         let (seed, pairs) = match self {
             Draw::Uniform { seed, .. } | Draw::KeptIn { seed, .. } => (*seed, self.pairs()),
-            Draw::FilledIn { .. } => (ESTIMATE_SEED, self.pairs()),
+            Draw::Stratified { .. } => (ESTIMATE_SEED, self.pairs()),
         };
         SampleSet {
             name: "uniform".into(),
@@ -310,9 +302,10 @@ impl Scored {
 }
 
 impl ReferenceSet {
-    /// The estimation set: `n` uniform pairs from [`ESTIMATE_SEED`].
+    /// The estimation set: `n` pairs uniform in solid angle, stratified ([`stratified_pairs`]
+    /// of [`ESTIMATE_SEED`]).
     pub fn new(source: &dyn Brdf, n: usize) -> ReferenceSet {
-        ReferenceSet::uniform(source, n, ESTIMATE_SEED)
+        ReferenceSet::drawn(source, Draw::Stratified { n, domain: None })
     }
 
     /// `n` uniform pairs from `seed` (a user's check set).
@@ -339,24 +332,14 @@ impl ReferenceSet {
         self.draw.set()
     }
 
-    /// [`ReferenceSet::new`] inside a table's stored domain (θi, θo ≤ θmax of `domain`):
-    /// uniform pairs drawn until `n` fall inside it, so that the estimate has as many pairs
-    /// as on a full hemisphere. `None`: the whole hemisphere.
-    ///
-    /// The pairs are drawn by rejection: a domain holding few uniform pairs is refused
-    /// ([`sampleable_domain`]) rather than drawn for hours.
+    /// [`ReferenceSet::new`] inside a table's stored domain (θi, θo ≤ θmax of `domain`),
+    /// drawn there directly, so that the estimate has as many pairs as on a full hemisphere
+    /// however small the domain. `None`: the whole hemisphere.
     pub fn new_in(source: &dyn Brdf, n: usize, domain: Option<&Grid>) -> Result<ReferenceSet> {
-        let Some(g) = domain.filter(|g| g.theta_max().is_some()) else {
-            return Ok(ReferenceSet::new(source, n));
-        };
-        sampleable_domain(g)?;
-        Ok(ReferenceSet::drawn(
-            source,
-            Draw::FilledIn {
-                n,
-                domain: Box::new(g.clone()),
-            },
-        ))
+        let domain = domain
+            .filter(|g| g.theta_max().is_some())
+            .map(|g| Box::new(g.clone()));
+        Ok(ReferenceSet::drawn(source, Draw::Stratified { n, domain }))
     }
 
     /// [`ReferenceSet::uniform`] restricted to a table's stored domain, as `check` restricts
@@ -387,6 +370,17 @@ impl ReferenceSet {
 
     pub fn is_empty(&self) -> bool {
         self.len == 0
+    }
+
+    /// [`ErrorEstimator::curve_scale`] of an estimator of this set with upper values for
+    /// `for_samples` pairs, before it is built.
+    pub fn curve_scale(&self, budget: &crate::plan::budget::Budget, for_samples: usize) -> f64 {
+        let eps = self.epsilon();
+        if budget.bounds_relative() && eps > 0.0 {
+            (self.epsilon_low(for_samples.max(1)) / eps).min(1.0)
+        } else {
+            1.0
+        }
     }
 
     /// ε of the relative metrics on this set: 1e-3 · mean |f| (`spec/metrics.md`).
@@ -514,6 +508,7 @@ impl ErrorEstimator {
             .and_then(|p| p.check.as_ref())
             .map(|s| &s.pairs.index[..]);
         let check = check.map(|r| Scored::new(table, r, check_hint));
+        let epsilon_low = reference.epsilon_low(for_samples.max(1));
         Ok(ErrorEstimator {
             pairs,
             stencil,
@@ -523,7 +518,7 @@ impl ErrorEstimator {
             grid_cells: table.grid().cells(),
             channels: c,
             epsilon: reference.epsilon(),
-            epsilon_low: reference.epsilon_low(for_samples.max(1)),
+            epsilon_low,
             for_samples: for_samples.max(1),
             z: CONFIDENCE_Z,
         })
@@ -542,6 +537,21 @@ impl ErrorEstimator {
     /// ε of the relative metrics on the estimation set.
     pub fn epsilon(&self) -> f64 {
         self.epsilon
+    }
+
+    /// The ε of a second curve ln(ε + f) the rate control tries, relative to the estimation
+    /// set's: when `budget` bounds a relative metric, the low ε its upper values are measured
+    /// against (a step δ of that curve is then a relative error of at most δ for every value,
+    /// down to the darkest the bound weighs); else 1. A bright peak over dark values has ε far
+    /// above that low ε (ε follows the rare pairs that hit the peak) and a curve of ε spends
+    /// its error where the bound is tightest. The same value as
+    /// [`ReferenceSet::curve_scale`] of this estimator's sets.
+    pub fn curve_scale(&self, budget: &crate::plan::budget::Budget) -> f64 {
+        if budget.bounds_relative() && self.epsilon > 0.0 {
+            (self.epsilon_low / self.epsilon).min(1.0)
+        } else {
+            1.0
+        }
     }
 
     /// cos θi and cos θo of the pairs and the reference values (pair-major), in the
@@ -865,15 +875,65 @@ mod tests {
         }
     }
 
+    /// The estimation set gives a rare corner of the pair space its exact share: both
+    /// directions within cos θ < 1/32 of the horizon holds 1/1024 of uniform pairs, and of
+    /// 2¹⁷ stratified pairs exactly 128 fall there (a pseudo-random set: 128 ± 11). Inside a
+    /// θmax domain every pair is within it, and the set is as large.
+    #[test]
+    fn the_estimation_set_holds_its_share_of_a_rare_corner() {
+        let n = 1usize << 17;
+        let corner = stratified_pairs(ESTIMATE_SEED, 0.0)
+            .take(n)
+            .filter(|(wi, wo)| wi.z < 1.0 / 32.0 && wo.z < 1.0 / 32.0)
+            .count();
+        assert_eq!(corner, 128);
+        let domain = parse_grid_spec("halfdiff3:8x8x8,theta-max=5").unwrap();
+        let draw = Draw::Stratified {
+            n: 5000,
+            domain: Some(Box::new(domain.clone())),
+        };
+        let set = draw.set();
+        assert_eq!(set.pairs.len(), 5000);
+        assert!(set.pairs.iter().all(|&(wi, wo)| domain.in_domain(wi, wo)));
+        assert!(
+            set.pairs
+                .iter()
+                .all(|(wi, wo)| wi.z >= 5f64.to_radians().cos() - 1e-12
+                    && wo.z >= 5f64.to_radians().cos() - 1e-12)
+        );
+    }
+
+    /// The budget's own curve: a bare conductor peak, whose ε follows the few pairs that hit
+    /// the peak, gets a low ε far below ε (a second curve is tried); a body under a broad lobe
+    /// keeps ε; a budget without relative metrics keeps ε.
+    #[test]
+    fn the_curve_scale_follows_the_low_epsilon_of_relative_budgets() {
+        let budget = crate::plan::budget::Budget::parse("preview").unwrap();
+        let log_only = crate::plan::budget::Budget::parse("log_rmse=0.01").unwrap();
+        let scale = |spec: &str| {
+            let m = Model::parse(spec).unwrap();
+            let r = ReferenceSet::new(&m, 1 << 15);
+            (
+                r.curve_scale(&budget, 65536),
+                r.curve_scale(&log_only, 65536),
+            )
+        };
+        let (peak, peak_log) = scale("ggx:alpha=0.005,fresnel=al");
+        assert!(peak < 0.67, "bare peak: {peak}");
+        assert_eq!(peak_log, 1.0);
+        let (body, _) = scale("lambert:albedo=0.5+ggx:alpha=0.3,fresnel=au");
+        assert!(body > 0.8 && body <= 1.0, "body: {body}");
+    }
+
     /// Every draw gives pair k again as its set holds it, bit for bit.
     #[test]
     fn a_pair_drawn_again_is_the_set_s_pair() {
         let domain = Box::new(parse_grid_spec("spherical3:8x8x8,theta-max=40").unwrap());
         for draw in [
             Draw::Uniform { n: 4000, seed: 3 },
-            Draw::FilledIn {
+            Draw::Stratified {
                 n: 4000,
-                domain: domain.clone(),
+                domain: Some(domain.clone()),
             },
             Draw::KeptIn {
                 n: 4000,

@@ -289,7 +289,13 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
     // before the estimator's stencils, as for a stored table ([`plan_table`]).
     let held = (reopen.is_none() || refine).then_some(held);
     let mut prepared = match held {
-        None => prepare_coefficients(&table, reference.epsilon(), settings.effort, progress),
+        None => prepare_coefficients(
+            &table,
+            reference.epsilon(),
+            reference.curve_scale(&settings.budget, for_samples),
+            settings.effort,
+            progress,
+        ),
         Some(_) => None,
     };
     let mut current = measure(table, tabulate_s, true, &mut timings)?;
@@ -589,9 +595,13 @@ fn plan_table(
     // estimator's stencils (35 MB for the 52 MiB table of docs/robustness.md) are not held
     // beside the DCT's planes, the peak of the encode.
     let prepared = match (&table, again) {
-        (Cow::Owned(t), Some(_)) => {
-            prepare_coefficients(t, reference.epsilon(), settings.effort, progress)
-        }
+        (Cow::Owned(t), Some(_)) => prepare_coefficients(
+            t,
+            reference.epsilon(),
+            reference.curve_scale(&settings.budget, check.len().max(1)),
+            settings.effort,
+            progress,
+        ),
         _ => None,
     };
     let (est, floor) = {

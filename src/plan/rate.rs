@@ -30,7 +30,8 @@ use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
-    filled_planes_f32, filled_planes_f32_in_place, transform_with_curve,
+    filled_planes_f32, filled_planes_f32_in_place, refine_coefficients_f32, transform_with_curve,
+    transform_with_curve_held,
 };
 use crate::simd::dispatch;
 use crate::table::Table;
@@ -78,10 +79,30 @@ impl Effort {
     /// metric's ε, dead zone, refined fill passes). The refined fill builds, decodes and
     /// fills again f64 planes of every cell (134 MB each on a 64⁴ grid; with it, `max` took
     /// 683 MB and 55 s for a 67 MB table): above the f32 planes' threshold it is left out.
-    fn variants(self, cells: usize) -> Vec<Variant> {
+    ///
+    /// `curve_scale` is the budget's own curve ([`ErrorEstimator::curve_scale`]): at the
+    /// default and max efforts, when it is below [`SECOND_CURVE_BELOW`] of the metric's ε,
+    /// that curve is tried too (on tables up to the f32 planes' threshold, whose transforms
+    /// cost tenths of a second).
+    fn variants(self, cells: usize, curve_scale: f64) -> Vec<Variant> {
         let mut all = self.all_variants();
         if cells > F32_PLANE_CELLS {
             all.retain(|v| v.refine == 0);
+            for v in &mut all {
+                v.refine_once = 0;
+            }
+        }
+        if self != Effort::Fast
+            && cells <= F32_PLANE_CELLS
+            && curve_scale > 0.0
+            && curve_scale < SECOND_CURVE_BELOW
+        {
+            all.push(Variant {
+                eps_scale: curve_scale,
+                deadzone: DEFAULT_DEADZONE,
+                refine: 0,
+                refine_once: DEFAULT_REFINE_ONCE,
+            });
         }
         all
     }
@@ -91,9 +112,14 @@ impl Effort {
             eps_scale,
             deadzone,
             refine,
+            refine_once: 0,
         };
         match self {
-            Effort::Fast | Effort::Default => vec![v(1.0, DEFAULT_DEADZONE, 0)],
+            Effort::Fast => vec![v(1.0, DEFAULT_DEADZONE, 0)],
+            Effort::Default => vec![Variant {
+                refine_once: DEFAULT_REFINE_ONCE,
+                ..v(1.0, DEFAULT_DEADZONE, 0)
+            }],
             Effort::Max => vec![
                 v(1.0, DEFAULT_DEADZONE, 0),
                 v(0.5, DEFAULT_DEADZONE, 0),
@@ -106,12 +132,28 @@ impl Effort {
     }
 }
 
+/// The budget's own curve ([`Effort::variants`]) is tried when its ε is below this share of
+/// the metric's ε: closer, the two curves make files within a few percent of each other
+/// (the zoo's bodies, whose low ε is 0.8–0.95 of ε), and a second transform would cost
+/// time for nothing.
+const SECOND_CURVE_BELOW: f64 = 0.67;
+
+/// Passes of the refined fill the default effort makes once, at its first candidate's step
+/// ([`Control::run`]; `Domain::FillRefined` with `at_step`). One pass took the production
+/// file of `gold-metallic-paint.binary` from 28,292 to about 24 KB (a fill made at every
+/// candidate's step: 24,391 B, but 0.5 s and 73 MB more); further passes gain a few percent
+/// each (`max` effort tries four at every step).
+const DEFAULT_REFINE_ONCE: u32 = 1;
+
 /// One codec variant of the rate control.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Variant {
     eps_scale: f64,
     deadzone: f64,
     refine: u32,
+    /// Passes of the refined fill made once, at the first candidate's step, and kept for the
+    /// candidates after it (0: none).
+    refine_once: u32,
 }
 
 impl Variant {
@@ -122,6 +164,8 @@ impl Variant {
             self.deadzone,
             if self.refine > 0 {
                 format!(" refine={}", self.refine)
+            } else if self.refine_once > 0 {
+                format!(" refined once={}", self.refine_once)
             } else {
                 String::new()
             }
@@ -230,18 +274,23 @@ pub struct Prepared {
 
 /// The coefficients [`encode_within_lending`] starts from at `effort`, made from `table` and
 /// the metrics' ε of the estimation set (`ReferenceSet::epsilon`, which the estimator built
-/// from that set reports too); `None` at `max` effort, which makes several.
+/// from that set reports too), for the first curve tried (the budget's own curve,
+/// `ReferenceSet::curve_scale`, may follow); `None` when that curve's fill is refined at
+/// every step.
 pub fn prepare_coefficients(
     table: &Table,
     epsilon: f64,
+    curve_scale: f64,
     effort: Effort,
     progress: Progress,
 ) -> Option<Prepared> {
-    let variants = effort.variants(table.grid().cells());
+    // The first curve's coefficients (the one tried first); a second curve's are made by
+    // the rate control after it.
+    let variants = effort.variants(table.grid().cells(), curve_scale);
     let scale = variants[0].eps_scale;
     if variants
         .iter()
-        .any(|v| v.eps_scale != scale || v.refine > 0)
+        .any(|v| v.eps_scale == scale && v.refine > 0)
     {
         return None;
     }
@@ -335,7 +384,7 @@ fn encode(
     // DCT, whose planes are the larger transient), or is the lent samples.
     let mut decoded: Vec<f32> = Vec::new();
     let has_negative = has_negative(access.table());
-    let variants = effort.variants(access.table().grid().cells());
+    let variants = effort.variants(access.table().grid().cells(), est.curve_scale(budget));
     let mut by_scale: Vec<f64> = Vec::new();
     for v in &variants {
         if !by_scale.contains(&v.eps_scale) {
@@ -348,8 +397,18 @@ fn encode(
         && by_scale.len() == 1
         && variants.iter().all(|v| v.refine == 0);
     let lent_print = lend.then(|| fingerprint(access.table()));
-    for scale in by_scale {
+    for (i, scale) in by_scale.into_iter().enumerate() {
         let t = Instant::now();
+        if i > 0 {
+            // The last curve's coefficients are gone, and the decode buffer is made again by
+            // the first decode of this curve ([`Control::measure_payload`]): neither stays
+            // resident beside this curve's planes, made beside the estimator's stencils
+            // (the second curve's transform was the MERL-grid pack's peak, 35 MB over it).
+            if !matches!(access, Access::Lend(..)) {
+                decoded = Vec::new();
+            }
+            crate::memory::release_free_memory();
+        }
         let made = prepared
             .take()
             .filter(|p| p.scale == scale && p.epsilon == est.epsilon());
@@ -367,11 +426,12 @@ fn encode(
                         progress,
                     )
                 }
-                _ => transform_and_coefficients(
+                _ => transform_and_coefficients_held(
                     access.table(),
                     est.epsilon(),
                     scale,
                     has_negative,
+                    i == 0,
                     progress,
                 ),
             },
@@ -512,7 +572,20 @@ fn transform_and_coefficients(
     has_negative: bool,
     progress: Progress,
 ) -> (Transform, Vec<Vec<f32>>, f64) {
-    let transform = curve_transform(table, epsilon, scale, has_negative, progress);
+    transform_and_coefficients_held(table, epsilon, scale, has_negative, true, progress)
+}
+
+/// [`transform_and_coefficients`], the colour transform's samples held or not
+/// ([`curve_transform_held`]).
+fn transform_and_coefficients_held(
+    table: &Table,
+    epsilon: f64,
+    scale: f64,
+    has_negative: bool,
+    hold: bool,
+    progress: Progress,
+) -> (Transform, Vec<Vec<f32>>, f64) {
+    let transform = curve_transform_held(table, epsilon, scale, has_negative, hold, progress);
     progress("forward DCT");
     let c = table.channels().len();
     let dims = table.grid().shape();
@@ -603,6 +676,20 @@ fn curve_transform(
     has_negative: bool,
     progress: Progress,
 ) -> Transform {
+    curve_transform_held(table, epsilon, scale, has_negative, true, progress)
+}
+
+/// [`curve_transform`], the colour transform's samples held (`hold`; 27 MB in f64 on the
+/// MERL grid) or made again for each of its two passes (the same transform: a second curve
+/// is made beside the estimator's stencils, where they were the pack's peak).
+fn curve_transform_held(
+    table: &Table,
+    epsilon: f64,
+    scale: f64,
+    has_negative: bool,
+    hold: bool,
+    progress: Progress,
+) -> Transform {
     let c = table.channels().len();
     progress("transforming (log curve, colour)");
     let eps = (scale * epsilon).max(f64::MIN_POSITIVE);
@@ -614,7 +701,11 @@ fn curve_transform(
     } else {
         Curve::Log { eps: vec![eps; c] }
     };
-    let transform = transform_with_curve(table, curve, true, None);
+    let transform = if hold {
+        transform_with_curve(table, curve, true, None)
+    } else {
+        transform_with_curve_held(table, curve, true, None, 0)
+    };
     // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid) and
     // the estimator's construction are freed: handed back before the DCT's planes.
     crate::memory::release_free_memory();
@@ -752,7 +843,73 @@ impl Control<'_> {
                 best = Some((spec, payload, e));
             }
         }
-        Ok(best)
+        match best {
+            Some(b) if self.variant.refine_once > 0 => self.refined_final(b).map(Some),
+            b => Ok(b),
+        }
+    }
+
+    /// The accepted candidate `best` again with its invalid cells' fill refined at its own
+    /// step ([`Variant::refine_once`] passes, `codec::planes::refine_coefficients_f32`, one
+    /// plane at a time in f32), decoded and measured: kept when it is accepted and smaller.
+    /// The refinement moves the fill towards what that step reconstructs, so fewer
+    /// coefficients survive the dead zone. Made once, at the converged step, it costs one
+    /// refinement, one encode and one decode; at every candidate's step (`Variant::refine`)
+    /// it cost 0.5 s and 73 MB more on the MERL grid.
+    fn refined_final(
+        &mut self,
+        best: (CodecSpec, Vec<u8>, Estimate),
+    ) -> Result<(CodecSpec, Vec<u8>, Estimate)> {
+        let valid = self.table.valid();
+        let CodecSpec::DctContext { dct: stage, .. } = &best.0 else {
+            return Ok(best);
+        };
+        let s = stage.step[0];
+        if valid.iter().all(|&v| v) || stage.step.iter().any(|&x| x != s) {
+            return Ok(best);
+        }
+        (self.progress)(&format!("refining the fill at step {s:.4e}"));
+        let dims = self.table.grid().shape();
+        let v = self.variant;
+        let codes: Vec<_> = self
+            .coefs
+            .iter()
+            .map(|plane| {
+                let refined = refine_coefficients_f32(
+                    plane.clone(),
+                    &dims,
+                    valid,
+                    s,
+                    v.deadzone,
+                    v.refine_once,
+                );
+                coefcode::quantize_deadzone(&refined, &dims, s, v.deadzone)
+            })
+            .collect();
+        let payload = coefcode::encode(&codes);
+        drop(codes);
+        let mut spec = best.0.clone();
+        if let CodecSpec::DctContext { domain, .. } = &mut spec {
+            *domain = Domain::FillRefined {
+                iterations: v.refine_once,
+            };
+        }
+        // The whole file: the header names the refined domain in ~20 more bytes.
+        let header = |s: &CodecSpec| serde_json::to_string(s).map_or(0, |j| j.len());
+        if payload.len() + header(&spec) >= best.1.len() + header(&best.0) {
+            return Ok(best);
+        }
+        let e = self.measure_payload(&spec, &payload, s)?;
+        let meets = accepts(self.budget, &e);
+        self.trials.push(RateTrial {
+            variant: format!("{} refined", v.describe()),
+            step: s,
+            bytes: payload.len(),
+            predicted_mse: mse(self.coefs, s, v.deadzone),
+            estimate: e.clone(),
+            meets,
+        });
+        Ok(if meets { (spec, payload, e) } else { best })
     }
 
     /// [`Control::measure`] at step `s`, recorded in the trials with the step's predicted
@@ -816,18 +973,25 @@ impl Control<'_> {
                 v.deadzone,
             ))
         };
+        let e = self.measure_payload(&spec, &payload, s)?;
+        Ok((spec, payload, e))
+    }
+
+    /// Decodes `payload` (of `spec`, at step `s`) as a reader would and measures it against
+    /// the source.
+    fn measure_payload(&mut self, spec: &CodecSpec, payload: &[u8], s: f64) -> Result<Estimate> {
+        let c = self.table.channels().len();
         if decodes_at_cells(self.table) && spec.decodes_cells(c) {
             let cells = self.est.cells();
             let mut at_cells = vec![0f32; cells.len() * c];
             crate::memory::release_free_memory();
-            spec.decode_cells(&payload, self.layout, cells, &mut at_cells)?;
+            spec.decode_cells(payload, self.layout, cells, &mut at_cells)?;
             if at_cells.iter().any(|v| !v.is_finite()) {
                 return Err(Error::Failure(format!(
                     "rate control: step {s:e} decoded to a non-finite value"
                 )));
             }
-            let e = self.est.measure_cells(&at_cells);
-            return Ok((spec, payload, e));
+            return Ok(self.est.measure_cells(&at_cells));
         }
         if self.decoded.is_empty() {
             self.decoded.resize(self.table.grid().cells() * c, 0.0);
@@ -841,15 +1005,14 @@ impl Control<'_> {
         // transform's samples, the last candidate's codes and measurement) must not stay
         // resident beside it.
         crate::memory::release_free_memory();
-        spec.decode_into_with(&payload, self.layout, self.decoded, &mut scratch)?;
+        spec.decode_into_with(payload, self.layout, self.decoded, &mut scratch)?;
         drop(scratch);
         if self.decoded.iter().any(|v| !v.is_finite()) {
             return Err(Error::Failure(format!(
                 "rate control: step {s:e} decoded to a non-finite value"
             )));
         }
-        let e = self.est.measure(self.decoded);
-        Ok((spec, payload, e))
+        Ok(self.est.measure(self.decoded))
     }
 }
 
@@ -1166,7 +1329,13 @@ mod tests {
         };
         for prepared in [
             None,
-            prepare_coefficients(&t, reference.epsilon(), Effort::Default, &|_| {}),
+            prepare_coefficients(
+                &t,
+                reference.epsilon(),
+                reference.curve_scale(&budget, 1 << 14),
+                Effort::Default,
+                &|_| {},
+            ),
         ] {
             let mut lent = t.clone();
             let RateOutcome::Encoded(e) = encode_within_lending(
