@@ -424,6 +424,11 @@ impl Brdf for RglBsdf {
         true
     }
 
+    /// The planner recognises an RGL file to pack it in its own parameterization.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
+        Some(self)
+    }
+
     fn channels(&self) -> &Channels {
         &self.channels
     }
