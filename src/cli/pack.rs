@@ -32,7 +32,8 @@ pub struct PackArgs {
     /// θd dense toward the horizon, extended below it); `spherical3:90x90x180` for isotropic
     /// non-reciprocal ones (measured data), `halfdiff4:64,warp=linear/linear/grazing/linear`
     /// for anisotropic ones; a finer grid of the same layout when the default grid alone
-    /// cannot meet the budget.
+    /// cannot meet the budget. An RGL .bsdf without --grid is not tabulated: it is packed in
+    /// its own parameterization (a .bpk of kind brdfpack-rgl; docs/rgl.md).
     #[arg(long)]
     pub grid: Option<String>,
     /// Pairs in the uniform check set; the budget is also guaranteed (at 3σ) for
