@@ -302,6 +302,38 @@ fn a_vndf_that_is_not_derived_is_stored() {
     assert!(l <= 0.01 && p <= 0.2, "{l} {p}");
 }
 
+/// A file brdfpack's own RGL writer made holds another VNDF (a mixture with a flat density,
+/// aligned at the horizon): the VNDF is coded with the colours, and the budget still holds.
+#[test]
+fn a_writers_vndf_is_coded_and_meets_the_budget() {
+    use brdfpack::io::rgl::write::{RglWriteOptions, write_rgl};
+    let model = brdfpack::model::Model::parse("ggx:alpha=0.3,fresnel=au").unwrap();
+    let written = write_rgl(
+        &model,
+        &RglWriteOptions {
+            theta_slices: 6,
+            colour_res: 16,
+            vndf_res: 32,
+            ndf_res: 32,
+            ..RglWriteOptions::default()
+        },
+    )
+    .unwrap();
+    let f = RglFields::parse(&written.bytes, "g").unwrap();
+    assert_ne!(with_derived_vndf(&f, "g").unwrap(), f);
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("g.bsdf");
+    std::fs::write(&src, &written.bytes).unwrap();
+    let out = dir.path().join("g.bpk");
+    let r = pack_json(&src, &out, &["--max-error", "preview"]);
+    assert_eq!(r["vndf"], "coded");
+    assert!(r["bytes"].as_u64().unwrap() * 4 < written.bytes.len() as u64);
+    for seed in 1..=2 {
+        let (l, p) = check(&out, &src, 30_000, 40 + seed);
+        assert!(l <= 0.01 && p <= 0.2, "seed {seed}: {l} {p}");
+    }
+}
+
 /// The container's bytes with the header replaced (checksums recomputed), as a hostile
 /// writer would make them.
 fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u8> {
@@ -341,7 +373,7 @@ fn tables_readers_refuse_it_and_damage_is_an_error() {
             0.05,
             0.5,
         ),
-        derive_vndf: true,
+        vndf: packed::VndfPacking::Derived,
         derive_luminance: true,
     };
     let bytes = packed::to_bytes(src.fields(), &opts, &provenance()).unwrap();
@@ -401,6 +433,16 @@ fn tables_readers_refuse_it_and_damage_is_an_error() {
             with_header(&bytes, |h| {
                 h["colour"]["coding"]["step"] = serde_json::json!(-1.0)
             }),
+        ),
+        (
+            "colour_bytes",
+            with_header(&bytes, |h| {
+                h["colour_bytes"] = serde_json::json!(1u64 << 40)
+            }),
+        ),
+        (
+            "coded without coding",
+            with_header(&bytes, |h| h["vndf"] = serde_json::json!("coded")),
         ),
         (
             "vndf shape",

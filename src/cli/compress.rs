@@ -382,7 +382,7 @@ fn compress_rgl(
         "output": a.output.display().to_string(),
         "form": crate::io::rgl::packed::FORMAT,
         "coding": planned.options.coding,
-        "vndf": if planned.options.derive_vndf { "derived" } else { "stored" },
+        "vndf": planned.options.vndf.name(),
         "bytes": planned.bytes.len(),
         "budget": budget.bounds,
         "file": planned.estimate,
@@ -405,11 +405,7 @@ fn compress_rgl(
         r,
         "form: {} (the RGL file in its own parameterization; VNDF {})",
         crate::io::rgl::packed::FORMAT,
-        if planned.options.derive_vndf {
-            "derived"
-        } else {
-            "stored"
-        }
+        planned.options.vndf.name()
     )?;
     writeln!(r, "size: {} bytes", planned.bytes.len())?;
     writeln!(

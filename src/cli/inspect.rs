@@ -132,6 +132,7 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
                     match p.vndf {
                         crate::io::rgl::packed::FieldForm::Derived => "derived from the NDF",
                         crate::io::rgl::packed::FieldForm::Stored => "stored",
+                        crate::io::rgl::packed::FieldForm::Coded => "coded (signed log, DCT)",
                     }
                 );
                 outln!("source: {}", sanitize(&p.provenance.source));

@@ -172,6 +172,16 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     };
     // An RGL file without --grid: packed in its own parameterization (issue #19), unless a
     // codec for tables is asked for or something the form cannot keep.
+    if let Source::Measured(_) = &source
+        && a.grid.is_none()
+        && !scene.is_empty()
+        && !a.quiet
+    {
+        eprintln!(
+            "brdfpack: note: the RGL file is tabulated on a grid, not packed in its own \
+             parameterization: a scene restricts a grid's domain and channels"
+        );
+    }
     if let Source::Measured(m) = &source
         && a.grid.is_none()
         && scene.is_empty()

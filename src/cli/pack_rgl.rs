@@ -65,6 +65,12 @@ pub fn run(
     effort: Effort,
     reads: &crate::reads::ReadSet,
 ) -> anyhow::Result<i32> {
+    if a.full_check && !a.quiet {
+        eprintln!(
+            "brdfpack: note: --full-check: an RGL file in its own parameterization has no grid \
+             cells; the uniform, grazing and specular sets are checked"
+        );
+    }
     let bar = super::common::Bar::new(a.quiet);
     let progress = |stage: &str| bar.stage(stage);
     let settings = PackSettings {
@@ -135,11 +141,7 @@ pub fn run(
         source: source.describe(),
         form: crate::io::rgl::packed::FORMAT,
         coding: planned.options.coding.clone(),
-        vndf: if planned.options.derive_vndf {
-            "derived"
-        } else {
-            "stored"
-        },
+        vndf: planned.options.vndf.name(),
         bytes: planned.bytes.len(),
         raw_f32_bytes: raw,
         compression_ratio: raw as f64 / planned.bytes.len() as f64,

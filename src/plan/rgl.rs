@@ -13,7 +13,11 @@ use super::rate::{Effort, Progress, accepts};
 use crate::codec::coefcode::DEFAULT_DEADZONE;
 use crate::codec::tensor::TensorCoding;
 use crate::io::rgl::RglBsdf;
-use crate::io::rgl::packed::{self, PackOptions, colour_dims, colour_name, with_derived_vndf};
+use crate::io::rgl::fields::RawField;
+use crate::io::rgl::packed::{
+    self, PackOptions, VndfPacking, colour_dims, colour_name, decode_vndf, vndf_dims,
+    with_derived_vndf,
+};
 use crate::table::Provenance;
 use crate::{Error, Result};
 use serde::Serialize;
@@ -28,7 +32,8 @@ pub struct RglAttempt {
     pub eps_share: Option<f64>,
     /// Dead zone in steps (`None`: lossless).
     pub deadzone: Option<f64>,
-    pub vndf_derived: bool,
+    /// The VNDF: `derived`, `coded` or `stored`.
+    pub vndf: &'static str,
     pub payload_bytes: usize,
     pub accepted: bool,
 }
@@ -61,6 +66,25 @@ pub fn unsupported(source: &RglBsdf) -> Option<String> {
     match fields.get(name) {
         Some(f) if colour_dims(&f.shape).is_some() => None,
         _ => Some(format!("the file has no `{name}` tensor of 5 axes")),
+    }
+}
+
+/// What a candidate holds of the VNDF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Form {
+    Derived,
+    Coded,
+    Stored,
+}
+
+impl Form {
+    /// The packing of this form (`coding`: the VNDF's, for [`Form::Coded`]).
+    fn vndf(self, coding: Option<TensorCoding>) -> VndfPacking {
+        match (self, coding) {
+            (Form::Derived, _) => VndfPacking::Derived,
+            (Form::Coded, Some(c)) => VndfPacking::Coded(c),
+            (Form::Coded, None) | (Form::Stored, _) => VndfPacking::Stored,
+        }
     }
 }
 
@@ -114,7 +138,7 @@ pub fn plan_rgl(
             step: None,
             eps_share: None,
             deadzone: None,
-            vndf_derived: false,
+            vndf: "stored",
             payload_bytes: bytes.len(),
             accepted: true,
         });
@@ -138,42 +162,72 @@ pub fn plan_rgl(
     timings.push(("derived VNDF".to_string(), t.elapsed().as_secs_f64()));
     let mut forms = Vec::new();
     if accepts(&settings.budget, &derived_floor) {
-        forms.push((true, derived, derived_floor));
+        forms.push((Form::Derived, derived, derived_floor));
     }
-    // The stored VNDF otherwise (or when no step meets the budget with the derived one).
-    let stored_floor = est.measure(source)?;
-    forms.push((false, source.clone(), stored_floor));
+    // Otherwise (or when no step meets the budget with the derived one) the file's own VNDF,
+    // coded with the colours; stored exactly when no coding of it meets the budget.
+    let vndf = fields.f32_of("vndf", what)?;
+    let vdims = vndf_dims(&fields.require("vndf", what)?.shape);
+    let exact_floor = est.measure(source)?;
+    if vdims.is_some() {
+        forms.push((Form::Coded, source.clone(), exact_floor.clone()));
+    }
+    forms.push((Form::Stored, source.clone(), exact_floor));
 
     let t = Instant::now();
     let mut best: Option<(PackOptions, Estimate, Estimate, usize)> = None;
     let mut start = first_step(&settings.budget);
-    'forms: for (derive_vndf, base, floor) in forms {
+    for (form, base, floor) in forms {
         progress(&format!(
             "coding the colour tensor (VNDF {})",
-            if derive_vndf { "derived" } else { "stored" }
+            form.vndf(None).name()
         ));
         for &(eps_share, deadzone) in variants(settings.effort) {
+            // The VNDF, when coded, with the colours' step and ε rule: both are densities or
+            // values whose relative errors the log curve measures.
             let options_for = |step: f64| PackOptions {
                 coding: TensorCoding::dct_for(&colour, &dims, channels, eps_share, step, deadzone),
-                derive_vndf,
+                vndf: form.vndf(
+                    vdims
+                        .as_ref()
+                        .map(|d| TensorCoding::dct_for(&vndf, d, 1, eps_share, step, deadzone)),
+                ),
                 derive_luminance: true,
             };
             let mut trial = |step: f64| -> Result<Trial> {
                 let opts = options_for(step);
                 let payload = opts.coding.encode(&colour, &dims, channels)?;
                 let decoded = opts.coding.decode(&payload, &dims, channels)?;
-                let cand = base.with_colour(&decoded)?;
+                let (cand, extra) = match (&opts.vndf, &vdims) {
+                    // The reader's fields: the decoded colours and VNDF (clamped as it clamps).
+                    (VndfPacking::Coded(vc), Some(d)) => {
+                        let vp = vc.encode(&vndf, d, 1)?;
+                        let v = decode_vndf(vc, &vp, d)?;
+                        let mut f = fields.clone();
+                        let shape = |n: &str| fields.get(n).map(|f| f.shape.clone());
+                        f.put(
+                            RawField::f32(cname, shape(cname).unwrap_or_default(), &decoded),
+                            0,
+                        );
+                        f.put(
+                            RawField::f32("vndf", shape("vndf").unwrap_or_default(), &v),
+                            0,
+                        );
+                        (RglBsdf::from_fields(f, what)?, vp.len())
+                    }
+                    _ => (base.with_colour(&decoded)?, 0),
+                };
                 let estimate = est.measure_within(&cand, Some(&settings.budget))?;
                 attempts.push(RglAttempt {
                     step: Some(step),
                     eps_share: Some(eps_share),
                     deadzone: Some(deadzone),
-                    vndf_derived: derive_vndf,
-                    payload_bytes: payload.len(),
+                    vndf: opts.vndf.name(),
+                    payload_bytes: payload.len() + extra,
                     accepted: accepts(&settings.budget, &estimate),
                 });
                 Ok(Trial {
-                    payload_bytes: payload.len(),
+                    payload_bytes: payload.len() + extra,
                     estimate,
                 })
             };
@@ -191,10 +245,10 @@ pub fn plan_rgl(
                 ));
             }
         }
-        // A derived VNDF that meets the budget makes a file a stored VNDF (its f32 values)
-        // cannot approach.
-        if derive_vndf && best.is_some() {
-            break 'forms;
+        // The forms come smallest first: a derived VNDF (nothing stored) before a coded one
+        // before its f32 values.
+        if best.is_some() {
+            break;
         }
     }
     timings.push(("colour coding".to_string(), t.elapsed().as_secs_f64()));

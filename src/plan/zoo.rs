@@ -312,11 +312,7 @@ pub fn run_one(
                 let form = format!(
                     "{} (VNDF {})",
                     crate::io::rgl::packed::FORMAT,
-                    if p.options.derive_vndf {
-                        "derived"
-                    } else {
-                        "stored"
-                    }
+                    p.options.vndf.name()
                 );
                 Ok((form, p.bytes, Box::new(back) as Box<dyn crate::brdf::Brdf>))
             })

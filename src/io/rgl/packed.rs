@@ -55,6 +55,8 @@ pub enum FieldForm {
     Stored,
     /// Rebuilt by the reader (module doc).
     Derived,
+    /// Coded lossily by `vndf_coding` (the VNDF alone), its payload after the colour's.
+    Coded,
 }
 
 /// The colour tensor: its field name (`rgb` or `spectra`), shape `[Nφ, Nθ, C, n, n]` and coding.
@@ -78,10 +80,17 @@ pub struct PackedHeader {
     #[serde(default = "rgl_order", skip_serializing_if = "is_rgl_order")]
     pub fields: Vec<String>,
     pub colour: ColourDesc,
-    /// The `vndf` field: stored, or derived with this shape `[Nφ, Nθ, H, W]`.
+    /// The `vndf` field: stored, derived or coded, the latter two with this shape
+    /// `[Nφ, Nθ, H, W]`.
     pub vndf: FieldForm,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub vndf_shape: Option<Vec<usize>>,
+    /// The coding of a coded VNDF (one channel; values clamped at 0 when read: a density).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vndf_coding: Option<TensorCoding>,
+    /// Bytes of the colour payload when a coded VNDF's follows it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub colour_bytes: Option<usize>,
     /// The `luminance` field (when the file has one): stored or derived from `rgb`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub luminance: Option<FieldForm>,
@@ -90,12 +99,33 @@ pub struct PackedHeader {
     pub stored_raw_bytes: usize,
 }
 
+/// What a packed file holds of the VNDF.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VndfPacking {
+    /// Its values, exactly.
+    Stored,
+    /// Nothing: the reader derives it from the NDF.
+    Derived,
+    /// Its values coded lossily.
+    Coded(TensorCoding),
+}
+
+impl VndfPacking {
+    /// `stored`, `derived` or `coded` (reports).
+    pub fn name(&self) -> &'static str {
+        match self {
+            VndfPacking::Stored => "stored",
+            VndfPacking::Derived => "derived",
+            VndfPacking::Coded(_) => "coded",
+        }
+    }
+}
+
 /// How to pack: the colour coding and which fields to leave out.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PackOptions {
     pub coding: TensorCoding,
-    /// Leave the VNDF out (the reader derives it).
-    pub derive_vndf: bool,
+    pub vndf: VndfPacking,
     /// Leave the luminance out (the reader derives it from `rgb`).
     pub derive_luminance: bool,
 }
@@ -106,9 +136,25 @@ impl PackOptions {
     pub fn lossless() -> PackOptions {
         PackOptions {
             coding: TensorCoding::Lossless,
-            derive_vndf: false,
+            vndf: VndfPacking::Stored,
             derive_luminance: false,
         }
+    }
+}
+
+/// The VNDF of a coded payload, as the reader has it: decoded, clamped at 0 (a density; the
+/// curve's inverse can return a hair below 0 next to a zero node).
+pub fn decode_vndf(coding: &TensorCoding, payload: &[u8], dims: &[usize]) -> Result<Vec<f32>> {
+    let mut v = coding.decode(payload, dims, 1)?;
+    v.iter_mut().for_each(|x| *x = x.max(0.0));
+    Ok(v)
+}
+
+/// The coded axes of a VNDF `[Nφ, Nθ, H, W]` as a one-channel tensor (as [`colour_dims`]).
+pub fn vndf_dims(shape: &[usize]) -> Option<Vec<usize>> {
+    match *shape {
+        [p, t, h, w] => colour_dims(&[p, t, 1, h, w]).map(|(d, _)| d),
+        _ => None,
     }
 }
 
@@ -213,10 +259,24 @@ pub fn to_bytes(
         && fields.get("luminance").is_some();
     let mut stored = fields.clone();
     stored.take(colour_name);
-    let vndf_shape = if opts.derive_vndf {
-        stored.take("vndf").map(|(_, f)| f.shape)
-    } else {
-        None
+    let mut vndf_payload = None;
+    let vndf_shape = match &opts.vndf {
+        VndfPacking::Stored => None,
+        VndfPacking::Derived => stored.take("vndf").map(|(_, f)| f.shape),
+        VndfPacking::Coded(coding) => {
+            let v = fields.f32_of("vndf", what)?;
+            let shape = stored
+                .take("vndf")
+                .map(|(_, f)| f.shape)
+                .unwrap_or_default();
+            let dims = vndf_dims(&shape).ok_or_else(|| {
+                Error::input(format!(
+                    "field `vndf`: shape {shape:?}, expected [phi_i, theta_i, H, W]"
+                ))
+            })?;
+            vndf_payload = Some(coding.encode(&v, &dims, 1)?);
+            Some(shape)
+        }
     };
     if derive_luminance {
         stored.take("luminance");
@@ -233,12 +293,17 @@ pub fn to_bytes(
             shape: colour.shape.clone(),
             coding: opts.coding.clone(),
         },
-        vndf: if vndf_shape.is_some() {
-            FieldForm::Derived
-        } else {
-            FieldForm::Stored
+        vndf: match opts.vndf {
+            VndfPacking::Stored => FieldForm::Stored,
+            VndfPacking::Derived => FieldForm::Derived,
+            VndfPacking::Coded(_) => FieldForm::Coded,
         },
         vndf_shape,
+        vndf_coding: match &opts.vndf {
+            VndfPacking::Coded(c) => Some(c.clone()),
+            _ => None,
+        },
+        colour_bytes: vndf_payload.as_ref().map(|_| payload.len()),
         luminance: fields.get("luminance").map(|_| {
             if derive_luminance {
                 FieldForm::Derived
@@ -253,6 +318,9 @@ pub fn to_bytes(
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
     let mut data = z;
     data.extend_from_slice(&payload);
+    if let Some(v) = &vndf_payload {
+        data.extend_from_slice(v);
+    }
     Ok(native::container(
         VERSION_MINOR,
         &[
@@ -362,11 +430,58 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
     // The decoded values and the coder's planes.
     crate::memory::require("the packed RGL colour tensor", values.saturating_mul(16))
         .map_err(|e| bad(e.to_string()))?;
+    let rest = &data[h.stored_bytes..];
+    let (colour_payload, vndf_payload) = match h.colour_bytes {
+        Some(n) if n <= rest.len() => rest.split_at(n),
+        Some(n) => {
+            return Err(bad(format!(
+                "header field `colour_bytes` = {n} exceeds the {} bytes after the stored fields",
+                rest.len()
+            )));
+        }
+        None => (rest, &[][..]),
+    };
     let colour = h
         .colour
         .coding
-        .decode(&data[h.stored_bytes..], &dims, channels)
+        .decode(colour_payload, &dims, channels)
         .map_err(|e| bad(format!("field `{}`: {e}", h.colour.name)))?;
+    // A coded VNDF: one channel, clamped at 0 (a density; the curve's inverse can return a
+    // value a hair below 0 next to a zero node).
+    let coded_vndf = match (h.vndf, &h.vndf_coding, &h.vndf_shape) {
+        (FieldForm::Coded, Some(coding), Some(shape)) => {
+            let dims = vndf_dims(shape)
+                .filter(|d| {
+                    d.iter()
+                        .try_fold(1u64, |a, &x| a.checked_mul(x as u64))
+                        .is_some_and(|n| n <= super::MAX_FILE_BYTES / 4)
+                })
+                .ok_or_else(|| {
+                    bad(format!(
+                        "header field `vndf_shape` = {shape:?}: expected [phi_i, theta_i, H, W] \
+                         within an RGL file's size"
+                    ))
+                })?;
+            let n: usize = dims.iter().product();
+            crate::memory::require("the packed RGL VNDF", (n as u64).saturating_mul(16))
+                .map_err(|e| bad(e.to_string()))?;
+            let v = decode_vndf(coding, vndf_payload, &dims)
+                .map_err(|e| bad(format!("field `vndf`: {e}")))?;
+            Some(RawField::f32("vndf", shape.clone(), &v))
+        }
+        (FieldForm::Coded, _, _) => {
+            return Err(bad(
+                "header says `vndf` coded but gives no `vndf_coding` or `vndf_shape`".into(),
+            ));
+        }
+        _ if !vndf_payload.is_empty() => {
+            return Err(bad(format!(
+                "{} bytes follow the colour payload, but the VNDF is not coded",
+                vndf_payload.len()
+            )));
+        }
+        _ => None,
+    };
     // Every field from exactly one place, in the file's order.
     let mut out = Vec::with_capacity(h.fields.len());
     for (k, name) in h.fields.iter().enumerate() {
@@ -378,6 +493,8 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
         let from_stored = stored.get(name);
         let rebuilt = if *name == h.colour.name {
             Some(RawField::f32(name, h.colour.shape.clone(), &colour))
+        } else if name == "vndf" && h.vndf == FieldForm::Coded {
+            coded_vndf.clone()
         } else if name == "vndf" && h.vndf == FieldForm::Derived {
             let shape = h.vndf_shape.clone().ok_or_else(|| {
                 bad("header says `vndf` derived but gives no `vndf_shape`".into())
