@@ -505,6 +505,39 @@ fn tables_readers_refuse_it_and_damage_is_an_error() {
     }
 }
 
+/// Every byte of a packed file is checked: each one flipped, and the file cut at every
+/// length, is an error (exit code 2), never a panic.
+#[test]
+fn every_flipped_byte_and_every_cut_is_an_error() {
+    let src = RglBsdf::from_fields(
+        RglFields::parse(&std::fs::read(tiny_path()).unwrap(), "tiny").unwrap(),
+        "tiny",
+    )
+    .unwrap();
+    let rgb = src.fields().f32_of("rgb", "tiny").unwrap();
+    let opts = PackOptions {
+        coding: brdfpack::codec::tensor::TensorCoding::dct_for(&rgb, &[2, 4, 4], 3, 1e-2, 0.1, 0.5),
+        vndf: packed::VndfPacking::Stored,
+        derive_luminance: true,
+    };
+    let bytes = packed::to_bytes(src.fields(), &opts, &provenance()).unwrap();
+    assert!(RglBsdf::from_bytes(&bytes, "ok.bpk").is_ok());
+    for k in 0..bytes.len() {
+        let mut b = bytes.clone();
+        b[k] ^= 0x01;
+        match RglBsdf::from_bytes(&b, "flip.bpk") {
+            Err(e) => assert_eq!(e.exit_code(), 2, "byte {k}: {e}"),
+            Ok(_) => panic!("byte {k} flipped: accepted"),
+        }
+    }
+    for len in 0..bytes.len() {
+        let Err(e) = RglBsdf::from_bytes(&bytes[..len], "cut.bpk") else {
+            panic!("cut at {len}: accepted")
+        };
+        assert_eq!(e.exit_code(), 2, "cut at {len}: {e}");
+    }
+}
+
 /// The RGL database's files (when `../shared` is present): within 4 KB at `preview` and
 /// 24 KB at `production`, every one of 3 independent seeds of 100k pairs within the budget
 /// (docs/compression.md has the 10-seed run).

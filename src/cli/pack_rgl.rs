@@ -200,8 +200,15 @@ fn human(r: &RglPackReport) -> String {
     );
     let _ = writeln!(
         s,
-        "size          {} bytes ({:.2}x smaller than {} bytes of the colour tensor's f32)",
-        r.bytes, r.compression_ratio, r.raw_f32_bytes
+        "size          {} bytes ({:.1}% of the {} bytes of the colour tensor's f32{})",
+        r.bytes,
+        100.0 / r.compression_ratio,
+        r.raw_f32_bytes,
+        if r.vndf == "stored" {
+            ", with every other field, the VNDF included"
+        } else {
+            ""
+        }
     );
     let _ = writeln!(
         s,
