@@ -184,6 +184,57 @@ fn the_derived_vndf_is_the_synthetic_files_and_not_tinys() {
     }
 }
 
+/// The derived VNDF of an anisotropic file, against the formula computed here from the
+/// analytic GGX D with the `ndf` nodes at the VNDF's nodes: absolute azimuths of m, wi at each
+/// slice's φi (an isotropic file's slice at φi = 0).
+#[test]
+fn the_derived_vndf_is_the_formula_with_absolute_azimuths() {
+    let (h, w) = (17usize, 33usize);
+    let (ax, ay) = (0.15, 0.4);
+    let phi_i = [-PI as f32, -1.0, 0.5, PI as f32];
+    let theta_i = [0.0f32, 0.7, 1.4];
+    let node = |y: usize, x: usize| {
+        let u = x as f64 / (w - 1) as f64;
+        let theta = u * u * FRAC_PI_2;
+        let phi = (2.0 * y as f64 / (h - 1) as f64 - 1.0) * PI;
+        (u, theta, phi)
+    };
+    let ndf: Vec<f32> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (y, x)))
+        .map(|(y, x)| {
+            let (_, t, p) = node(y, x);
+            ggx(t.min(FRAC_PI_2 - 1e-4), p, ax, ay) as f32
+        })
+        .collect();
+    let v = derived_vndf(&phi_i, &theta_i, &ndf, [h, w], h, w);
+    let mut k = 0;
+    let mut worst = 0.0f64;
+    for &pi in &phi_i {
+        for &ti in &theta_i {
+            let wi = Vec3::from_spherical(ti as f64, pi as f64);
+            for y in 0..h {
+                for x in 0..w {
+                    let (u, t, p) = node(y, x);
+                    let m = Vec3::from_spherical(t, p);
+                    let d = ndf[y * w + x] as f64;
+                    let want = d * wi.dot(m).max(0.0) * t.sin() * u;
+                    let got = v[k] as f64;
+                    worst = worst.max((got - want).abs() / want.abs().max(1e-30).max(got.abs()));
+                    if want == 0.0 {
+                        assert_eq!(got, 0.0);
+                    }
+                    k += 1;
+                }
+            }
+        }
+    }
+    assert!(worst < 1e-6, "{worst}");
+    // Isotropic: the slice at φi = 0 whatever `phi_i` says, azimuths relative to it.
+    let iso = derived_vndf(&[1.0], &theta_i, &ndf[..2 * w], [2, w], h, w);
+    let at_zero = derived_vndf(&[0.0], &theta_i, &ndf[..2 * w], [2, w], h, w);
+    assert_eq!(iso, at_zero);
+}
+
 fn pack_json(src: &Path, out: &Path, args: &[&str]) -> serde_json::Value {
     let o = brdfpack()
         .arg("pack")
