@@ -330,6 +330,38 @@ fn pack_meets_its_budget_on_independent_seeds() {
     }
 }
 
+/// `build` packs an RGL material with native outputs in its own parameterization: the same
+/// bytes as `pack`.
+#[test]
+fn build_packs_an_rgl_material_as_pack_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("s.bsdf");
+    std::fs::write(&src, synthetic(1)).unwrap();
+    let manifest = dir.path().join("m.toml");
+    std::fs::write(
+        &manifest,
+        format!(
+            "[[material]]\nname = \"s\"\nsource = {:?}\nmax_error = \"preview\"\noutputs = [{:?}]\n",
+            src.display().to_string(),
+            dir.path().join("out/s.bpk").display().to_string()
+        ),
+    )
+    .unwrap();
+    brdfpack()
+        .arg("build")
+        .arg(&manifest)
+        .arg("-o")
+        .arg(dir.path().join("summary.json"))
+        .assert()
+        .success();
+    let packed = dir.path().join("p.bpk");
+    pack_json(&src, &packed, &["--max-error", "preview"]);
+    assert_eq!(
+        std::fs::read(dir.path().join("out/s.bpk")).unwrap(),
+        std::fs::read(&packed).unwrap()
+    );
+}
+
 /// tiny.bsdf's VNDF is not its NDF's: the VNDF is stored (here the whole file is, the
 /// lossless form being the smaller one), and `inspect` says so.
 #[test]
