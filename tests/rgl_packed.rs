@@ -330,6 +330,86 @@ fn pack_meets_its_budget_on_independent_seeds() {
     }
 }
 
+/// A spectral file (`wavelengths`, `spectra`): the colour tensor is `spectra`, its luminance
+/// stored (rebuilt only from `rgb`); lossless is bit for bit, a fine DCT step close.
+#[test]
+fn a_spectral_file_packs_its_spectra() {
+    let rgb_file = RglFields::parse(&synthetic(1), "s").unwrap();
+    let rgb = rgb_file.f32_of("rgb", "s").unwrap();
+    let [p, t, _, n, _] = rgb_file.get("rgb").unwrap().shape[..] else {
+        unreachable!()
+    };
+    // Five wavelengths: mixtures of the RGB planes.
+    let plane = n * n;
+    let mut spectra = Vec::new();
+    for s in 0..p * t {
+        for k in 0..5 {
+            let w = [1.0 - k as f32 / 4.0, 0.5, k as f32 / 4.0];
+            for i in 0..plane {
+                spectra.push(
+                    (0..3)
+                        .map(|c| w[c] * rgb[(s * 3 + c) * plane + i])
+                        .sum::<f32>(),
+                );
+            }
+        }
+    }
+    let mut f = rgb_file.clone();
+    let (at, _) = f.take("rgb").unwrap();
+    f.fields.insert(
+        at,
+        brdfpack::io::rgl::fields::RawField::f32("spectra", vec![p, t, 5, n, n], &spectra),
+    );
+    f.fields.insert(
+        at,
+        brdfpack::io::rgl::fields::RawField::f32(
+            "wavelengths",
+            vec![5],
+            &[400.0, 475.0, 550.0, 625.0, 700.0],
+        ),
+    );
+    let src = RglBsdf::from_fields(f, "spectral").unwrap();
+    assert_eq!(src.channels().len(), 5);
+    let pairs = random_pairs(3000, 11);
+    let eval = |b: &RglBsdf| -> Vec<f64> {
+        let mut out = [0.0; 5];
+        pairs
+            .iter()
+            .flat_map(|&(wi, wo)| {
+                b.eval(wi, wo, &mut out);
+                out
+            })
+            .collect()
+    };
+    let lossless = packed::to_bytes(src.fields(), &PackOptions::lossless(), &provenance()).unwrap();
+    let back = RglBsdf::from_bytes(&lossless, "l.bpk").unwrap();
+    assert_eq!(back.fields(), src.fields());
+    let opts = PackOptions {
+        coding: brdfpack::codec::tensor::TensorCoding::dct_for(
+            &spectra,
+            &[t, n, n],
+            5,
+            1e-2,
+            1e-3,
+            0.5,
+        ),
+        vndf: packed::VndfPacking::Derived,
+        derive_luminance: true,
+    };
+    let lossy = packed::to_bytes(src.fields(), &opts, &provenance()).unwrap();
+    let h = packed::read_header(&lossy, Path::new("x")).unwrap();
+    assert_eq!(h.colour.name, "spectra");
+    assert_eq!(h.luminance, Some(packed::FieldForm::Stored));
+    let back = RglBsdf::from_bytes(&lossy, "x.bpk").unwrap();
+    let (a, b) = (eval(&src), eval(&back));
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs() / (x.abs() + 1e-3))
+        .fold(0.0, f64::max);
+    assert!(worst < 2e-3, "{worst}");
+}
+
 /// `build` packs an RGL material with native outputs in its own parameterization: the same
 /// bytes as `pack`.
 #[test]
