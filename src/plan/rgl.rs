@@ -44,8 +44,8 @@ pub struct RglPlanned {
     pub options: PackOptions,
     /// The file against the source.
     pub estimate: Estimate,
-    /// The form alone: the exact colour tensor with the VNDF as the file holds it (derived or
-    /// stored) against the source, what the parameterization costs before coding.
+    /// The form alone: the exact colour tensor with the VNDF derived (or the file's own, for a
+    /// coded or stored VNDF) against the source, what the form costs before coding.
     pub floor: Estimate,
     pub attempts: Vec<RglAttempt>,
     pub timings: Vec<(String, f64)>,
@@ -88,7 +88,8 @@ impl Form {
     }
 }
 
-/// The bits of candidate `opts`' file, its colour decoded and evaluated as its reader will.
+/// A candidate: its coded bytes (colour and, when coded, VNDF payloads) and its error, its
+/// tensors decoded and evaluated as its reader will.
 struct Trial {
     payload_bytes: usize,
     estimate: Estimate,
@@ -113,7 +114,12 @@ pub fn plan_rgl(
     let what = source.description();
     let cname = colour_name(fields);
     let colour_field = fields.require(cname, what)?;
-    let (dims, channels) = colour_dims(&colour_field.shape).expect("checked by unsupported");
+    let (dims, channels) = colour_dims(&colour_field.shape).ok_or_else(|| {
+        Error::input(format!(
+            "field `{cname}`: shape {:?}, expected [phi_i, theta_i, channels, n, n]",
+            colour_field.shape
+        ))
+    })?;
     let colour = fields.f32_of(cname, what)?;
 
     let t = Instant::now();
@@ -303,9 +309,10 @@ fn first_step(budget: &Budget) -> f64 {
 }
 
 /// The coding variants measured, (ε share, dead zone): ε at the metrics' own 10⁻³ of the mean
-/// and one and 1.5 decades above (the colour values' relative precision matters less for
-/// dark values than the metric's ε says where the warp gives them few pairs), plain rounding;
-/// `--effort max` also the coders' default dead zone; `fast` the middle ε alone.
+/// and one and 1.5 decades above, with plain rounding; `--effort max` also the coders' default
+/// dead zone; `fast` the middle ε alone. Which makes the smallest file depends on the file
+/// (how much a dark node's relative error reaches the metrics depends on how many pairs the
+/// warp sends to it and on the bright nodes it is blended with), so it is measured, not set.
 fn variants(effort: Effort) -> &'static [(f64, f64)] {
     match effort {
         Effort::Fast => &[(1e-2, 0.5)],
