@@ -217,6 +217,14 @@ fn run_budget(
         check_seed: a.seed,
     };
     let source = symmetry.apply(Source::open_recording(&a.input, &mut reads)?);
+    // An RGL file without --grid: packed in its own parameterization (issue #19), as `pack`.
+    if let Source::Measured(m) = &source
+        && a.grid.is_none()
+        && scene.is_empty()
+        && crate::plan::rgl::unsupported(m).is_none()
+    {
+        return compress_rgl(a, m, &budget, &settings, &progress, &bar, &reads);
+    }
     let planned = match source {
         Source::Table(t) => {
             if let Some(g) = &a.grid {
@@ -345,6 +353,82 @@ fn run_budget(
         r,
         "  grid alone: {} (the uncompressed table against the input)",
         values(e.floor.check.as_ref().unwrap_or(&e.floor.metrics))
+    )?;
+    report(a, &r, &machine)
+}
+
+/// `compress FILE.bsdf --max-error B`: the RGL file packed in its own parameterization.
+fn compress_rgl(
+    a: &CompressArgs,
+    source: &crate::io::rgl::RglBsdf,
+    budget: &Budget,
+    settings: &PackSettings,
+    progress: crate::plan::rate::Progress,
+    bar: &Bar,
+    reads: &ReadSet,
+) -> anyhow::Result<i32> {
+    use crate::brdf::Brdf;
+    let provenance = crate::table::Provenance {
+        source: source.describe(),
+        tool: crate::TOOL_VERSION.to_string(),
+        notes: Vec::new(),
+    };
+    let planned = crate::plan::rgl::plan_rgl(source, settings, false, &provenance, progress);
+    bar.finish();
+    let planned = planned?;
+    atomic::write_output(&a.output, &planned.bytes)?;
+    a.depfile.write(&[a.output.as_path()], reads)?;
+    let machine = json!({
+        "output": a.output.display().to_string(),
+        "form": crate::io::rgl::packed::FORMAT,
+        "coding": planned.options.coding,
+        "vndf": planned.options.vndf.name(),
+        "bytes": planned.bytes.len(),
+        "budget": budget.bounds,
+        "file": planned.estimate,
+        "form_alone": planned.floor,
+        "samples": a.samples,
+        "seed": a.seed,
+    });
+    let values = |m: &crate::check::Metrics| {
+        budget
+            .bounds
+            .iter()
+            .map(|(k, _)| format!("{k} {}", crate::check::fmt_num(m.get(k))))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    use std::fmt::Write as _;
+    let mut r = String::new();
+    writeln!(r, "output: {}", a.output.display())?;
+    writeln!(
+        r,
+        "form: {} (the RGL file in its own parameterization; VNDF {})",
+        crate::io::rgl::packed::FORMAT,
+        planned.options.vndf.name()
+    )?;
+    writeln!(r, "size: {} bytes", planned.bytes.len())?;
+    writeln!(
+        r,
+        "budget {}: met by the written file against the input ({} codings tried)",
+        budget.describe(),
+        planned.attempts.len()
+    )?;
+    if let Some(c) = &planned.estimate.check {
+        writeln!(
+            r,
+            "  file: {} on the uniform set of {} pairs, seed {}",
+            values(c),
+            a.samples,
+            a.seed
+        )?;
+    }
+    writeln!(
+        r,
+        "        {} at most on any independent uniform set of {} pairs (3σ upper values from {} pairs)",
+        values(&planned.estimate.upper),
+        a.samples,
+        planned.estimate_samples
     )?;
     report(a, &r, &machine)
 }

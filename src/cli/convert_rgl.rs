@@ -5,7 +5,7 @@
 use super::common::{Lookup, Source};
 use super::convert::ConvertArgs;
 use crate::io::atomic;
-use crate::io::rgl::write::{RglWriteOptions, rewrite_rgl, write_rgl};
+use crate::io::rgl::write::{RglWriteOptions, write_rgl};
 use clap::Args;
 
 /// Resolutions of an RGL `.bsdf` (defaults: RGL's 128-node NDF/VNDF, a 64×64 colour grid;
@@ -75,20 +75,26 @@ pub fn run(a: &ConvertArgs, input: Source) -> anyhow::Result<i32> {
         )
         .into());
     }
-    // An RGL file is written back table for table (unless it is to be clamped or resampled).
-    if let Source::Measured(_) = &input
+    // An RGL file is written back table for table (unless it is to be clamped or resampled);
+    // one packed in its own parameterization (a `.bpk` of kind brdfpack-rgl) as the RGL file
+    // it holds, its derived fields (VNDF, luminance) rebuilt.
+    if let Source::Measured(m) = &input
         && !a.symmetry.clamp_negative
         && !a.rgl.rgl_resample
     {
-        let bytes = atomic::read_input(std::path::Path::new(&a.input))?;
-        let out = rewrite_rgl(&bytes, &a.input)?;
+        let out = m.fields().to_tensor_bytes();
         atomic::write_output(&a.output, &out)?;
         if a.verbose {
             eprintln!(
-                "brdfpack: wrote {} (RGL .bsdf, {} bytes): the fields of {} unchanged",
+                "brdfpack: wrote {} (RGL .bsdf, {} bytes): the fields of {} {}",
                 a.output.display(),
                 out.len(),
-                a.input
+                a.input,
+                if m.packed().is_some() {
+                    "as packed (VNDF and luminance rebuilt when the file derives them)"
+                } else {
+                    "unchanged"
+                }
             );
         }
         return Ok(0);

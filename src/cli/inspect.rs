@@ -103,11 +103,12 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
         // Not a table: a measured BRDF with its own layout (docs/rgl.md).
         let rgl = crate::io::rgl::RglBsdf::from_bytes(&bytes, &a.file.display().to_string())?;
         let info = rgl.info();
+        let packed = rgl.packed();
         if a.json {
             outln!(
                 "{}",
                 serde_json::json!({"file": a.file.display().to_string(), "format": "rgl",
-                    "bytes": bytes.len(), "table": false, "rgl": info})
+                    "bytes": bytes.len(), "table": false, "rgl": info, "packed": packed})
             );
         } else {
             outln!("file: {}", sanitize(&a.file.display().to_string()));
@@ -115,6 +116,28 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
                 "format: rgl ({} bytes; a measured BRDF, not a table)",
                 bytes.len()
             );
+            if let Some(p) = packed {
+                use crate::codec::tensor::TensorCoding;
+                outln!(
+                    "packed: {} (a .bpk holding the RGL file in its own parameterization): \
+                     {} {}; VNDF {}",
+                    p.format,
+                    p.colour.name,
+                    match &p.colour.coding {
+                        TensorCoding::Lossless => "lossless (f32 + zstd)".to_string(),
+                        TensorCoding::Dct { step, eps, .. } => format!(
+                            "signed log (eps {eps:?}), colour KLT, DCT, context-coded, step {step:.4e}"
+                        ),
+                    },
+                    match p.vndf {
+                        crate::io::rgl::packed::FieldForm::Derived => "derived from the NDF",
+                        crate::io::rgl::packed::FieldForm::Stored => "stored",
+                        crate::io::rgl::packed::FieldForm::Coded => "coded (signed log, DCT)",
+                    }
+                );
+                outln!("source: {}", sanitize(&p.provenance.source));
+                outln!("tool: {}", sanitize(&p.provenance.tool));
+            }
             outln!("description: {}", sanitize(&info.description));
             outln!(
                 "resolution: {}x{} samples per slice, {} θi slices, {} φi slice(s), VNDF {}x{}",

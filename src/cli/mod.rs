@@ -35,6 +35,7 @@ mod inspect;
 mod models;
 mod oom;
 mod pack;
+mod pack_rgl;
 mod plot;
 mod props;
 mod tabulate;

@@ -32,7 +32,8 @@ pub struct PackArgs {
     /// θd dense toward the horizon, extended below it); `spherical3:90x90x180` for isotropic
     /// non-reciprocal ones (measured data), `halfdiff4:64,warp=linear/linear/grazing/linear`
     /// for anisotropic ones; a finer grid of the same layout when the default grid alone
-    /// cannot meet the budget.
+    /// cannot meet the budget. An RGL .bsdf without --grid is not tabulated: it is packed in
+    /// its own parameterization (a .bpk of kind brdfpack-rgl; docs/rgl.md).
     #[arg(long)]
     pub grid: Option<String>,
     /// Pairs in the uniform check set; the budget is also guaranteed (at 3σ) for
@@ -169,6 +170,50 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         Some(s) => a.symmetry.apply(Source::open_recording(s, &mut reads)?),
         None => Source::Model(Model::default_material()),
     };
+    // An RGL file without --grid: packed in its own parameterization (issue #19), unless a
+    // codec for tables is asked for or something the form cannot keep.
+    if let Source::Measured(_) = &source
+        && a.grid.is_none()
+        && !scene.is_empty()
+        && !a.quiet
+    {
+        eprintln!(
+            "brdfpack: note: the RGL file is tabulated on a grid, not packed in its own \
+             parameterization: a scene restricts a grid's domain and channels"
+        );
+    }
+    if let Source::Measured(m) = &source
+        && a.grid.is_none()
+        && scene.is_empty()
+    {
+        let why = match crate::plan::rgl::unsupported(m) {
+            Some(why) => Some(why),
+            None if a.codec.as_deref().is_some_and(|c| c.trim() != "lossless") => Some(format!(
+                "--codec {} is a codec of grid tables (only `lossless` applies to the packed form)",
+                a.codec.as_deref().unwrap_or_default()
+            )),
+            None => None,
+        };
+        match why {
+            None => {
+                let Source::Measured(m) = source else {
+                    unreachable!("matched above")
+                };
+                let budget = match a.max_error.as_deref().or(scene.max_error.as_deref()) {
+                    Some(b) => Some(Budget::parse(b)?),
+                    None if a.codec.is_none() => Some(Budget::parse(DEFAULT_MAX_ERROR)?),
+                    None => None,
+                };
+                let default_budget = a.max_error.is_none() && a.codec.is_none();
+                return super::pack_rgl::run(&a, m, budget, default_budget, effort, &reads);
+            }
+            Some(why) if !a.quiet => eprintln!(
+                "brdfpack: note: the RGL file is tabulated on a grid, not packed in its own \
+                 parameterization: {why}"
+            ),
+            Some(_) => {}
+        }
+    }
     // A table read from a regular file can be read again: on a fixed grid the planner does
     // not hold it beside the coefficients, and the check reads it again (it is as large as
     // the table planned).

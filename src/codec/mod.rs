@@ -29,6 +29,7 @@ pub mod quantize;
 pub mod reference;
 pub mod residual;
 mod simd;
+pub mod tensor;
 pub mod transform;
 pub mod tucker;
 mod unpredict;

@@ -48,7 +48,10 @@ impl Format {
 /// The format of `bytes`. Content decides; the path only helps a damaged MERL file (which
 /// has no magic) get MERL's precise error instead of "unknown format".
 pub fn detect(bytes: &[u8], path: &Path) -> Format {
-    if native::is_native(bytes) {
+    if rgl::packed::is_packed_rgl(bytes) {
+        // A measured RGL file packed in its own parameterization: read as the RGL file.
+        Format::Rgl
+    } else if native::is_native(bytes) {
         Format::Native
     } else if exr::is_exr(bytes) {
         Format::Exr
@@ -75,6 +78,15 @@ pub fn decode_table(bytes: &[u8], path: &Path) -> Result<Table> {
         Format::Exr => exr::from_bytes(bytes, path),
         Format::Merl => merl::from_bytes(bytes, path),
         Format::Mbsdf => mbsdf::from_bytes(bytes, path),
+        Format::Rgl if native::is_native(bytes) => Err(Error::invalid_file(
+            path,
+            format!(
+                "holds an RGL tensor (an RGL .bsdf packed in its own parameterization, format \
+                 {:?}), not a grid table: open it as a measured source (eval, check, plot, \
+                 convert -o x.bsdf), or tabulate it on a grid",
+                rgl::packed::FORMAT
+            ),
+        )),
         Format::Rgl => Err(Error::invalid_file(
             path,
             "an RGL .bsdf file is a measured BRDF, not a table (tabulate it on a grid instead)",

@@ -33,7 +33,7 @@ pub const VERSION_MINOR_EXACT: u16 = 1;
 /// costs seconds on a MERL-sized table for a percent or two.
 const EXACT_ZSTD_LEVEL: i32 = 3;
 /// Largest header accepted (a real one is a few KB).
-const MAX_HEADER: u64 = 16 << 20;
+pub(crate) const MAX_HEADER: u64 = 16 << 20;
 const MAX_SECTIONS: u32 = 16;
 /// Magic, version, section count and their checksum.
 const PREAMBLE: usize = 20;
@@ -124,6 +124,12 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: &[u8]) -> R
         None => VERSION_MINOR,
     };
     sections.push((*b"END ", Cow::Borrowed(&[])));
+    Ok(container(minor, &sections))
+}
+
+/// The container's bytes: preamble (version 1.`minor`) and `sections` in order, each with
+/// its length and checksum. The caller supplies `END ` last.
+pub(crate) fn container(minor: u16, sections: &[([u8; 4], Cow<[u8]>)]) -> Vec<u8> {
     let mut out = Vec::new();
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&VERSION_MAJOR.to_le_bytes());
@@ -131,13 +137,13 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: &[u8]) -> R
     out.extend_from_slice(&(sections.len() as u32).to_le_bytes());
     let pre = crc32fast::hash(&out);
     out.extend_from_slice(&pre.to_le_bytes());
-    for (tag, payload) in &sections {
+    for (tag, payload) in sections {
         out.extend_from_slice(tag);
         out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
         out.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
         out.extend_from_slice(payload);
     }
-    Ok(out)
+    out
 }
 
 /// True when `bytes` start with the native magic.
@@ -146,7 +152,7 @@ pub fn is_native(bytes: &[u8]) -> bool {
 }
 
 /// Reads the sections of a native file, checking magic, version, lengths and checksums.
-fn sections<'a>(bytes: &'a [u8], path: &Path) -> Result<Vec<([u8; 4], &'a [u8])>> {
+pub(crate) fn sections<'a>(bytes: &'a [u8], path: &Path) -> Result<Vec<([u8; 4], &'a [u8])>> {
     let bad = |m: String| Error::invalid_file(path, m);
     if bytes.len() < PREAMBLE {
         return Err(bad(format!(
@@ -235,6 +241,23 @@ fn sections<'a>(bytes: &'a [u8], path: &Path) -> Result<Vec<([u8; 4], &'a [u8])>
     Ok(out)
 }
 
+/// The kind of a native file: its header's `format` alone.
+#[derive(Deserialize)]
+struct Kind {
+    format: String,
+}
+
+/// The header's `format` of a native file (`brdfpack-table`, `brdfpack-rgl`), its sections
+/// checked; `None` when `bytes` are not a readable native file (its reader then says why).
+pub fn kind_of(bytes: &[u8]) -> Option<String> {
+    let secs = sections(bytes, Path::new("")).ok()?;
+    let head = secs.first()?.1;
+    if head.len() as u64 > MAX_HEADER {
+        return None;
+    }
+    serde_json::from_slice::<Kind>(head).ok().map(|k| k.format)
+}
+
 /// Parses only the header (for `inspect`).
 pub fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
     let secs = sections(bytes, path)?;
@@ -247,6 +270,20 @@ fn parse_header(head: &[u8], path: &Path) -> Result<Header> {
     }
     crate::text::reject_duplicate_json_keys(head)
         .map_err(|e| Error::invalid_file(path, format!("header JSON: {e}")))?;
+    // The kind first: another kind's header lacks the table's fields, and "missing field
+    // `grid`" would not say what the file is.
+    if let Ok(Kind { format }) = serde_json::from_slice::<Kind>(head)
+        && format == crate::io::rgl::packed::FORMAT
+    {
+        return Err(Error::invalid_file(
+            path,
+            format!(
+                "holds an RGL .bsdf packed in its own parameterization (header `format` = \
+                 {format:?}), not a grid table: open it as a measured source (eval, check, \
+                 plot, inspect, convert to .bsdf), or tabulate it on a grid"
+            ),
+        ));
+    }
     let h: Header = serde_json::from_slice(head)
         .map_err(|e| Error::invalid_file(path, format!("header JSON: {e}")))?;
     if h.format != "brdfpack-table" {

@@ -8,6 +8,8 @@
 //! one-sided (0 when wi.z ≤ 0 or wo.z ≤ 0); negative table values are passed through unless
 //! [`RglBsdf::with_clamp_negative`] asks for them to be clamped at 0 (as powitacq does).
 
+pub mod fields;
+pub mod packed;
 pub mod tensor;
 pub mod warp;
 pub mod write;
@@ -65,6 +67,10 @@ pub struct RglBsdf {
     vndf: VndfWarp,
     colour: ColourTables,
     clamp_negative: bool,
+    /// The file's fields as read (shared by clones: a candidate differs in its tables only).
+    fields: std::sync::Arc<fields::RglFields>,
+    /// The packed file's header, when read from one.
+    packed: Option<std::sync::Arc<packed::PackedHeader>>,
 }
 
 impl RglBsdf {
@@ -87,8 +93,59 @@ impl RglBsdf {
         RglBsdf::from_bytes(&bytes, &path.display().to_string())
     }
 
-    /// Parses an RGL `.bsdf` held in memory; `name` labels error messages.
+    /// Parses an RGL `.bsdf` held in memory, or one packed in its own parameterization (a
+    /// `.bpk` of kind [`packed::FORMAT`], read back to its fields); `name` labels error
+    /// messages.
     pub fn from_bytes(bytes: &[u8], name: &str) -> Result<RglBsdf> {
+        if crate::io::native::is_native(bytes) {
+            let (header, fields) = packed::from_bytes(bytes, Path::new(name))?;
+            let mut b = RglBsdf::from_fields(fields, name)?;
+            b.packed = Some(std::sync::Arc::new(header));
+            return Ok(b);
+        }
+        let mut b = RglBsdf::from_tensor_bytes(bytes, name)?;
+        b.fields = std::sync::Arc::new(fields::RglFields::parse(bytes, name)?);
+        Ok(b)
+    }
+
+    /// The BRDF of an RGL file's fields (validated here); `name` labels error messages.
+    pub fn from_fields(fields: fields::RglFields, name: &str) -> Result<RglBsdf> {
+        let bytes = fields.to_tensor_bytes();
+        let mut b = RglBsdf::from_tensor_bytes(&bytes, name)?;
+        b.fields = std::sync::Arc::new(fields);
+        Ok(b)
+    }
+
+    /// The source's fields (what `convert` writes back and `pack` packs).
+    pub fn fields(&self) -> &fields::RglFields {
+        &self.fields
+    }
+
+    /// The header of the packed file this source was read from (`None`: an RGL `.bsdf`).
+    pub fn packed(&self) -> Option<&packed::PackedHeader> {
+        self.packed.as_deref()
+    }
+
+    /// This BRDF with its colour tables replaced by `values` (the colour field's layout
+    /// `[Nφ, Nθ, C, n, n]`, same shape): a candidate of the planner, which changes only them.
+    pub fn with_colour(&self, values: &[f32]) -> Result<RglBsdf> {
+        let [nx, ny] = self.info.resolution;
+        let slices = self.info.phi_slices * self.info.theta_i.len();
+        let c = self.channels.len();
+        if values.len() != slices * c * nx * ny {
+            return Err(Error::input(format!(
+                "colour tables of {} values, expected {}",
+                values.len(),
+                slices * c * nx * ny
+            )));
+        }
+        let mut b = self.clone();
+        b.colour = ColourTables::from_planar(values, slices, c, ny, nx);
+        Ok(b)
+    }
+
+    /// Parses and validates a tensor file (an RGL `.bsdf`).
+    fn from_tensor_bytes(bytes: &[u8], name: &str) -> Result<RglBsdf> {
         let file = TensorFile::parse(bytes, name)?;
         let bad = |msg: String| Error::invalid_file(name, msg);
 
@@ -241,6 +298,8 @@ impl RglBsdf {
             vndf,
             colour,
             clamp_negative: false,
+            fields: std::sync::Arc::new(fields::RglFields { fields: Vec::new() }),
+            packed: None,
         })
     }
 
@@ -363,6 +422,11 @@ fn mulsign_neg(a: f64, s: f64) -> f64 {
 impl Brdf for RglBsdf {
     fn is_sampled(&self) -> bool {
         true
+    }
+
+    /// The planner recognises an RGL file to pack it in its own parameterization.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
+        Some(self)
     }
 
     fn channels(&self) -> &Channels {

@@ -387,6 +387,39 @@ fn write_if_changed(path: &Path, bytes: &[u8]) -> Result<bool> {
 /// grid), encoded in each output's format.
 fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> {
     let source = Source::open(&m.source)?.clamp_negative(m.clamp_negative);
+    // An RGL file with native outputs only and no grid: packed in its own parameterization
+    // (issue #19), as `pack` packs it.
+    if let Source::Measured(r) = &source
+        && m.grid.is_none()
+        && scene.is_empty()
+        && super::rgl::unsupported(r).is_none()
+        && m.outputs
+            .iter()
+            .all(|p| FormatName::from_path(p) == Some(FormatName::Native))
+    {
+        let budget = m.max_error.as_deref().or(scene.max_error.as_deref());
+        let lossless = m.codec.as_deref().map(str::trim) == Some("lossless");
+        if lossless || (budget.is_some() && m.codec.is_none()) {
+            let effort = Effort::parse(m.effort.as_deref().unwrap_or("default"))?;
+            let settings = PackSettings {
+                budget: Budget::parse(budget.unwrap_or(super::budget::PRODUCTION))?,
+                effort,
+                check_samples: 65_536,
+                check_seed: 1,
+            };
+            let provenance = crate::table::Provenance {
+                source: crate::brdf::Brdf::describe(r),
+                tool: crate::TOOL_VERSION.to_string(),
+                notes: Vec::new(),
+            };
+            let planned = super::rgl::plan_rgl(r, &settings, lossless, &provenance, &|_| {})?;
+            return Ok(m
+                .outputs
+                .iter()
+                .map(|p| (p.clone(), planned.bytes.clone()))
+                .collect());
+        }
+    }
     let src = scene.restrict_source(source.into_brdf(Lookup::Linear)?)?;
     let options = TabulateOptions {
         allow_anisotropic: m.allow_anisotropic || scene.isotropic == Some(true),

@@ -626,100 +626,225 @@ impl ErrorEstimator {
     /// The estimate from the interpolated values `apply` gives of each set's stencils.
     fn measure_by(&self, apply: impl Fn(&Stencil, &mut [f64])) -> Estimate {
         let c = self.channels;
-        let n = self.pairs.count();
-        let mut g = vec![0.0; n * c];
+        let mut g = vec![0.0; self.pairs.count() * c];
         apply(&self.stencil, &mut g);
-        let point = metrics_of(&self.pairs, &self.reference, &g, c, None);
-        let eps_low = self.epsilon_low.min(point.epsilon);
         let check = self.check_by(&apply);
-        // Per pair: squared errors averaged over channels (abs, rel, log) and whether the pair
-        // is in the core; the core relative errors of every channel.
-        struct PairTerms {
-            abs2: f64,
-            rel2: f64,
-            log2: f64,
-            core: bool,
-        }
-        let terms: Vec<PairTerms> = (0..n)
-            .into_par_iter()
-            .with_min_len(4096)
-            .map(|p| {
-                let cos_i = self.pairs.cos_i[p];
-                let (mut abs2, mut rel2, mut log2) = (0.0, 0.0, 0.0);
-                for k in 0..c {
-                    let (f, gv) = (self.reference[p * c + k], g[p * c + k]);
-                    let a = gv - f;
-                    let r = rel_error(f, gv, eps_low);
-                    let l = log_error(f, gv, cos_i);
-                    abs2 += a * a;
-                    rel2 += r * r;
-                    log2 += l * l;
-                }
-                let k = c as f64;
-                PairTerms {
-                    abs2: abs2 / k,
-                    rel2: rel2 / k,
-                    log2: log2 / k,
-                    core: self.pairs.core(p),
-                }
-            })
-            .collect();
-        let spread = |n_own: usize, n_ref: f64| {
-            if n_own < 2 || n_ref <= 0.0 {
-                f64::INFINITY
-            } else {
-                1.0 / n_ref + 1.0 / n_own as f64
-            }
-        };
-        // √(mean + z·√(var·spread)) of one per-pair term over the selected pairs.
-        let upper_rms = |pick: &dyn Fn(&PairTerms) -> Option<f64>, n_ref: f64| {
-            let vals: Vec<f64> = terms.iter().filter_map(pick).collect();
-            if vals.is_empty() {
-                return 0.0;
-            }
-            let m = vals.iter().sum::<f64>() / vals.len() as f64;
-            let var = if vals.len() > 1 {
-                vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (vals.len() - 1) as f64
-            } else {
-                0.0
-            };
-            (m + self.z * (var * spread(vals.len(), n_ref)).sqrt()).sqrt()
-        };
-        let n_ref = self.for_samples as f64;
-        let core_pairs = terms.iter().filter(|t| t.core).count();
-        let core_ref = n_ref * core_pairs as f64 / n.max(1) as f64;
-        let mut upper = point.clone();
-        upper.rmse = upper_rms(&|t| Some(t.abs2), n_ref);
-        upper.rel_rmse = upper_rms(&|t| Some(t.rel2), n_ref);
-        upper.log_rmse = upper_rms(&|t| Some(t.log2), n_ref);
-        upper.rel_rmse_core = upper_rms(&|t| t.core.then_some(t.rel2), core_ref);
-        if core_pairs > 0 {
-            let q = 0.99 + self.z * (0.99 * 0.01 * spread(core_pairs, core_ref)).sqrt();
-            let mut rel: Vec<f64> = Vec::with_capacity(core_pairs * c);
-            for (p, t) in terms.iter().enumerate() {
-                if t.core {
-                    for k in 0..c {
-                        rel.push(rel_error(self.reference[p * c + k], g[p * c + k], eps_low));
-                    }
-                }
-            }
-            upper.p99_rel_core = percentile(&mut rel, q.min(1.0));
-        }
-        // Never below the point value (the bound states "at most").
-        for (u, m) in [
-            (&mut upper.rmse, point.rmse),
-            (&mut upper.rel_rmse, point.rel_rmse),
-            (&mut upper.log_rmse, point.log_rmse),
-            (&mut upper.rel_rmse_core, point.rel_rmse_core),
-            (&mut upper.p99_rel_core, point.p99_rel_core),
-        ] {
-            *u = u.max(m);
-        }
-        Estimate {
-            metrics: point,
-            upper,
+        upper_estimate(
+            &self.pairs,
+            &self.reference,
+            &g,
+            c,
+            self.epsilon_low,
+            self.for_samples,
+            self.z,
             check,
+        )
+    }
+}
+
+/// The metrics of candidate values `g` against `reference` at `pairs` (pair-major, `c`
+/// channels) and their upper confidence values for an independent set of `for_samples`
+/// pairs (module doc), with `check`, the check set's metrics, passed through. The statistics
+/// of [`ErrorEstimator`] and [`PairEstimator`] alike: only where the candidate's values come
+/// from differs.
+#[allow(clippy::too_many_arguments)]
+fn upper_estimate(
+    pairs: &ScoredPairs,
+    reference: &[f64],
+    g: &[f64],
+    c: usize,
+    epsilon_low: f64,
+    for_samples: usize,
+    z: f64,
+    check: Option<Metrics>,
+) -> Estimate {
+    let n = pairs.count();
+    let point = metrics_of(pairs, reference, g, c, None);
+    let eps_low = epsilon_low.min(point.epsilon);
+    // Per pair: squared errors averaged over channels (abs, rel, log) and whether the pair
+    // is in the core; the core relative errors of every channel.
+    struct PairTerms {
+        abs2: f64,
+        rel2: f64,
+        log2: f64,
+        core: bool,
+    }
+    let terms: Vec<PairTerms> = (0..n)
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|p| {
+            let cos_i = pairs.cos_i[p];
+            let (mut abs2, mut rel2, mut log2) = (0.0, 0.0, 0.0);
+            for k in 0..c {
+                let (f, gv) = (reference[p * c + k], g[p * c + k]);
+                let a = gv - f;
+                let r = rel_error(f, gv, eps_low);
+                let l = log_error(f, gv, cos_i);
+                abs2 += a * a;
+                rel2 += r * r;
+                log2 += l * l;
+            }
+            let k = c as f64;
+            PairTerms {
+                abs2: abs2 / k,
+                rel2: rel2 / k,
+                log2: log2 / k,
+                core: pairs.core(p),
+            }
+        })
+        .collect();
+    let spread = |n_own: usize, n_ref: f64| {
+        if n_own < 2 || n_ref <= 0.0 {
+            f64::INFINITY
+        } else {
+            1.0 / n_ref + 1.0 / n_own as f64
         }
+    };
+    // √(mean + z·√(var·spread)) of one per-pair term over the selected pairs.
+    let upper_rms = |pick: &dyn Fn(&PairTerms) -> Option<f64>, n_ref: f64| {
+        let vals: Vec<f64> = terms.iter().filter_map(pick).collect();
+        if vals.is_empty() {
+            return 0.0;
+        }
+        let m = vals.iter().sum::<f64>() / vals.len() as f64;
+        let var = if vals.len() > 1 {
+            vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (vals.len() - 1) as f64
+        } else {
+            0.0
+        };
+        (m + z * (var * spread(vals.len(), n_ref)).sqrt()).sqrt()
+    };
+    let n_ref = for_samples as f64;
+    let core_pairs = terms.iter().filter(|t| t.core).count();
+    let core_ref = n_ref * core_pairs as f64 / n.max(1) as f64;
+    let mut upper = point.clone();
+    upper.rmse = upper_rms(&|t| Some(t.abs2), n_ref);
+    upper.rel_rmse = upper_rms(&|t| Some(t.rel2), n_ref);
+    upper.log_rmse = upper_rms(&|t| Some(t.log2), n_ref);
+    upper.rel_rmse_core = upper_rms(&|t| t.core.then_some(t.rel2), core_ref);
+    if core_pairs > 0 {
+        let q = 0.99 + z * (0.99 * 0.01 * spread(core_pairs, core_ref)).sqrt();
+        let mut rel: Vec<f64> = Vec::with_capacity(core_pairs * c);
+        for (p, t) in terms.iter().enumerate() {
+            if t.core {
+                for k in 0..c {
+                    rel.push(rel_error(reference[p * c + k], g[p * c + k], eps_low));
+                }
+            }
+        }
+        upper.p99_rel_core = percentile(&mut rel, q.min(1.0));
+    }
+    // Never below the point value (the bound states "at most").
+    for (u, m) in [
+        (&mut upper.rmse, point.rmse),
+        (&mut upper.rel_rmse, point.rel_rmse),
+        (&mut upper.log_rmse, point.log_rmse),
+        (&mut upper.rel_rmse_core, point.rel_rmse_core),
+        (&mut upper.p99_rel_core, point.p99_rel_core),
+    ] {
+        *u = u.max(m);
+    }
+    Estimate {
+        metrics: point,
+        upper,
+        check,
+    }
+}
+
+/// The estimator of candidates that are not tables on a grid (an RGL file packed in its own
+/// parameterization, `super::rgl`): the same sets, statistics and upper values as
+/// [`ErrorEstimator`], the candidate evaluated pointwise at the sets' pairs instead of
+/// interpolated through stencils. The pairs are held (48 B a pair), in set order.
+pub struct PairEstimator {
+    set: SampleSet,
+    pairs: ScoredPairs,
+    reference: Vec<f64>,
+    check: Option<(SampleSet, ScoredPairs, Vec<f64>)>,
+    channels: usize,
+    epsilon_low: f64,
+    for_samples: usize,
+    z: f64,
+}
+
+impl PairEstimator {
+    /// Candidates against the source of `reference` (and, with `check`, on the user's check
+    /// set too), with upper values stated for independent sets of `for_samples` pairs.
+    pub fn new(
+        reference: &ReferenceSet,
+        check: Option<&ReferenceSet>,
+        for_samples: usize,
+    ) -> PairEstimator {
+        let scored = |r: &ReferenceSet| {
+            let set = r.set();
+            let pairs = ScoredPairs {
+                cos_i: set.pairs.iter().map(|p| p.0.z).collect(),
+                cos_o: set.pairs.iter().map(|p| p.1.z).collect(),
+                // A set holds at most MAX_SAMPLES (< 2³²) pairs.
+                index: (0..set.pairs.len() as u32).collect(),
+                draw: r.draw.clone(),
+            };
+            (set, pairs)
+        };
+        let (set, pairs) = scored(reference);
+        PairEstimator {
+            set,
+            pairs,
+            reference: reference.values.clone(),
+            check: check.map(|r| {
+                let (s, p) = scored(r);
+                (s, p, r.values.clone())
+            }),
+            channels: reference.channels,
+            epsilon_low: reference.epsilon_low(for_samples.max(1)),
+            for_samples,
+            z: CONFIDENCE_Z,
+        }
+    }
+
+    /// Pairs of the estimation set.
+    pub fn samples(&self) -> usize {
+        self.pairs.count()
+    }
+
+    /// The error of `candidate` against the source, evaluated at every pair of both sets.
+    pub fn measure(&self, candidate: &dyn Brdf) -> Result<Estimate> {
+        self.measure_within(candidate, None)
+    }
+
+    /// [`PairEstimator::measure`], the check set left out (`check: None`) when the upper
+    /// values already miss `budget`: a candidate the check could only reject again costs the
+    /// estimation set alone.
+    pub fn measure_within(
+        &self,
+        candidate: &dyn Brdf,
+        budget: Option<&super::budget::Budget>,
+    ) -> Result<Estimate> {
+        if candidate.channels().len() != self.channels {
+            return Err(Error::input(format!(
+                "error estimate: the source has {} channels, the candidate {}",
+                self.channels,
+                candidate.channels().len()
+            )));
+        }
+        let c = self.channels;
+        let g = evaluate_set(candidate, &self.set);
+        let mut e = upper_estimate(
+            &self.pairs,
+            &self.reference,
+            &g,
+            c,
+            self.epsilon_low,
+            self.for_samples,
+            self.z,
+            None,
+        );
+        if budget.is_none_or(|b| b.met_by(&e.upper)) {
+            e.check = self.check.as_ref().map(|(set, pairs, reference)| {
+                let g = evaluate_set(candidate, set);
+                metrics_of(pairs, reference, &g, c, None)
+            });
+        }
+        Ok(e)
     }
 }
 

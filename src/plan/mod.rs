@@ -10,6 +10,7 @@ pub mod grids;
 pub mod manifest;
 pub mod pack;
 pub mod rate;
+pub mod rgl;
 pub mod scene;
 pub mod search;
 pub mod zoo;

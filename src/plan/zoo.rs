@@ -288,21 +288,62 @@ pub fn run_one(
     seeds: usize,
     pairs: usize,
 ) -> Result<ZooRow> {
+    let settings = PackSettings {
+        budget: budget.clone(),
+        effort,
+        check_samples: 65_536,
+        check_seed: 1,
+    };
     let t = Instant::now();
-    let planned = plan(
-        PackInput::Source {
-            source: src,
-            grid: None,
-            options: Default::default(),
-        },
-        &PackSettings {
-            budget: budget.clone(),
-            effort,
-            check_samples: 65_536,
-            check_seed: 1,
-        },
-        &|_| {},
-    );
+    // An RGL file is packed in its own parameterization, as `pack` packs it.
+    let rgl = src
+        .as_any()
+        .and_then(|a| a.downcast_ref::<crate::io::rgl::RglBsdf>())
+        .filter(|r| super::rgl::unsupported(r).is_none());
+    let planned: Result<(String, Vec<u8>, Box<dyn crate::brdf::Brdf>)> = match rgl {
+        Some(r) => {
+            let provenance = crate::table::Provenance {
+                source: crate::brdf::Brdf::describe(r),
+                tool: crate::TOOL_VERSION.to_string(),
+                notes: Vec::new(),
+            };
+            super::rgl::plan_rgl(r, &settings, false, &provenance, &|_| {}).and_then(|p| {
+                let back = crate::io::rgl::RglBsdf::from_bytes(&p.bytes, "zoo.bpk")?;
+                let form = format!(
+                    "{} (VNDF {})",
+                    crate::io::rgl::packed::FORMAT,
+                    p.options.vndf.name()
+                );
+                Ok((form, p.bytes, Box::new(back) as Box<dyn crate::brdf::Brdf>))
+            })
+        }
+        None => plan(
+            PackInput::Source {
+                source: src,
+                grid: None,
+                options: Default::default(),
+            },
+            &settings,
+            &|_| {},
+        )
+        .and_then(|planned| {
+            let bytes = native::to_bytes_with_payload(
+                &planned.table,
+                &planned.encoded.spec,
+                &planned.encoded.payload,
+            )?;
+            let back = native::from_bytes(&bytes, std::path::Path::new("zoo.bpk"))?;
+            let cand = InterpolatedTable {
+                table: back,
+                interp: Interp::Linear,
+            };
+            Ok((
+                planned.grid,
+                bytes,
+                Box::new(cand) as Box<dyn crate::brdf::Brdf>,
+            ))
+        }),
+    };
     let plan_s = t.elapsed().as_secs_f64();
     let row = |grid: String, bytes, worst, holds, error| ZooRow {
         material: name.to_string(),
@@ -317,22 +358,12 @@ pub fn run_one(
         holds,
         error,
     };
-    let planned = match planned {
+    let (grid, bytes, cand) = match planned {
         Ok(p) => p,
         Err(crate::Error::Failure(msg)) => {
             return Ok(row(String::new(), 0, Vec::new(), false, Some(msg)));
         }
         Err(e) => return Err(e),
-    };
-    let bytes = native::to_bytes_with_payload(
-        &planned.table,
-        &planned.encoded.spec,
-        &planned.encoded.payload,
-    )?;
-    let back = native::from_bytes(&bytes, std::path::Path::new("zoo.bpk"))?;
-    let cand = InterpolatedTable {
-        table: back,
-        interp: Interp::Linear,
     };
     let mut worst: Vec<(String, f64)> = budget
         .bounds
@@ -341,13 +372,17 @@ pub fn run_one(
         .collect();
     let mut holds = true;
     for k in 0..seeds {
-        let r = check_set(src, &cand, &SampleSet::uniform(pairs, 1000 + k as u64))?;
+        let r = check_set(
+            src,
+            cand.as_ref(),
+            &SampleSet::uniform(pairs, 1000 + k as u64),
+        )?;
         holds &= budget.met_by(&r.combined);
         for (name, w) in worst.iter_mut() {
             *w = w.max(r.combined.get(name).unwrap_or(f64::INFINITY));
         }
     }
-    Ok(row(planned.grid, bytes.len(), worst, holds, None))
+    Ok(row(grid, bytes.len(), worst, holds, None))
 }
 
 /// The Markdown table of a run.

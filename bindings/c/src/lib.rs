@@ -310,7 +310,7 @@ pub unsafe extern "C" fn brdfpack_grid_shape(
     guard(|| {
         // SAFETY: by contract.
         let s = unsafe { source_ref(source) }?;
-        let t = s.table().ok_or_else(not_a_table)?;
+        let t = s.table().ok_or_else(|| not_a_table(s))?;
         if ndims.is_null() || dims.is_null() {
             return Err(argument("brdfpack_grid_shape: ndims or dims is NULL"));
         }
@@ -326,11 +326,24 @@ pub unsafe extern "C" fn brdfpack_grid_shape(
     })
 }
 
-fn not_a_table() -> Fail {
-    Fail(
-        BRDFPACK_ERROR_NOT_A_TABLE,
-        "brdfpack: the source is not a table (a model or measured file has no samples)".into(),
-    )
+fn not_a_table(s: &Evaluable) -> Fail {
+    let rgl = s
+        .brdf()
+        .as_any()
+        .and_then(|a| a.downcast_ref::<brdfpack::io::rgl::RglBsdf>());
+    let msg = match rgl {
+        Some(r) if r.packed().is_some() => {
+            "brdfpack: the source holds an RGL tensor (an RGL .bsdf packed in its own \
+             parameterization, format \"brdfpack-rgl\"), not a grid table: evaluate it with \
+             brdfpack_eval, or tabulate it on a grid first"
+        }
+        Some(_) => {
+            "brdfpack: the source is a measured RGL .bsdf, not a grid table: evaluate it with \
+             brdfpack_eval, or tabulate it on a grid first"
+        }
+        None => "brdfpack: the source is not a table (a model or measured file has no samples)",
+    };
+    Fail(BRDFPACK_ERROR_NOT_A_TABLE, msg.into())
 }
 
 /// The grid of a table as JSON (`{"kind":"halfdiff3","axes":[{"quantity":"theta_h","n":90,
@@ -349,7 +362,7 @@ pub unsafe extern "C" fn brdfpack_grid_json(
     guard(|| {
         // SAFETY: by contract.
         let s = unsafe { source_ref(source) }?;
-        let t = s.table().ok_or_else(not_a_table)?;
+        let t = s.table().ok_or_else(|| not_a_table(s))?;
         let json = serde_json::to_string(&t.grid().desc())
             .map_err(|e| Fail(BRDFPACK_ERROR_INTERNAL, format!("brdfpack: JSON: {e}")))?;
         // SAFETY: by contract.
@@ -375,7 +388,7 @@ pub unsafe extern "C" fn brdfpack_table_data(
     guard(|| {
         // SAFETY: by contract.
         let s = unsafe { source_ref(source) }?;
-        let data = s.table().ok_or_else(not_a_table)?.data();
+        let data = s.table().ok_or_else(|| not_a_table(s))?.data();
         // SAFETY: by contract.
         unsafe { copy_slice(data, buf, len, needed) }
     })
@@ -397,7 +410,7 @@ pub unsafe extern "C" fn brdfpack_table_valid(
         let s = unsafe { source_ref(source) }?;
         let valid: Vec<u8> = s
             .table()
-            .ok_or_else(not_a_table)?
+            .ok_or_else(|| not_a_table(s))?
             .valid()
             .iter()
             .map(|&v| v as u8)

@@ -1,0 +1,392 @@
+//! `pack` of an RGL `.bsdf` in its own parameterization (issue #19): the file's fields kept,
+//! its VNDF left for the reader to derive from its NDF when that reproduces the source, and
+//! its colour tensor coded with the largest quantization step whose file still meets the
+//! budget (`io::rgl::packed`, `codec::tensor`). The packed file evaluates through the same
+//! code as the source, so its error is the coding's alone; it is measured end to end, the
+//! candidate evaluated at the estimation set's pairs ([`PairEstimator`]), with the upper
+//! values `pack` states for every file.
+
+use super::budget::Budget;
+use super::estimate::{ESTIMATE_PAIRS, Estimate, PairEstimator, ReferenceSet};
+use super::pack::PackSettings;
+use super::rate::{Effort, Progress, accepts};
+use crate::codec::coefcode::DEFAULT_DEADZONE;
+use crate::codec::tensor::TensorCoding;
+use crate::io::rgl::RglBsdf;
+use crate::io::rgl::fields::RawField;
+use crate::io::rgl::packed::{
+    self, PackOptions, VndfPacking, colour_dims, colour_name, decode_vndf, vndf_dims,
+    with_derived_vndf,
+};
+use crate::table::Provenance;
+use crate::{Error, Result};
+use serde::Serialize;
+use std::time::Instant;
+
+/// One coding tried, for the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct RglAttempt {
+    /// Quantization step (log units), `None` for lossless.
+    pub step: Option<f64>,
+    /// ε of the log curve as a share of each channel's mean |value| (`None`: lossless).
+    pub eps_share: Option<f64>,
+    /// Dead zone in steps (`None`: lossless).
+    pub deadzone: Option<f64>,
+    /// The VNDF: `derived`, `coded` or `stored`.
+    pub vndf: &'static str,
+    pub payload_bytes: usize,
+    pub accepted: bool,
+}
+
+/// The chosen file.
+pub struct RglPlanned {
+    pub bytes: Vec<u8>,
+    pub options: PackOptions,
+    /// The file against the source.
+    pub estimate: Estimate,
+    /// The form alone: the exact colour tensor with the VNDF derived (or the file's own, for a
+    /// coded or stored VNDF) against the source, what the form costs before coding.
+    pub floor: Estimate,
+    pub attempts: Vec<RglAttempt>,
+    pub timings: Vec<(String, f64)>,
+    pub estimate_samples: usize,
+}
+
+/// Why an RGL source cannot be packed in its own parameterization (`None`: it can).
+pub fn unsupported(source: &RglBsdf) -> Option<String> {
+    if source.clamps_negative() {
+        return Some(
+            "--clamp-negative changes the source's values, which the packed form keeps as \
+             they are"
+                .into(),
+        );
+    }
+    let fields = source.fields();
+    let name = colour_name(fields);
+    match fields.get(name) {
+        Some(f) if colour_dims(&f.shape).is_some() => None,
+        _ => Some(format!("the file has no `{name}` tensor of 5 axes")),
+    }
+}
+
+/// What a candidate holds of the VNDF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Form {
+    Derived,
+    Coded,
+    Stored,
+}
+
+impl Form {
+    /// The packing of this form (`coding`: the VNDF's, for [`Form::Coded`]).
+    fn vndf(self, coding: Option<TensorCoding>) -> VndfPacking {
+        match (self, coding) {
+            (Form::Derived, _) => VndfPacking::Derived,
+            (Form::Coded, Some(c)) => VndfPacking::Coded(c),
+            (Form::Coded, None) | (Form::Stored, _) => VndfPacking::Stored,
+        }
+    }
+}
+
+/// A candidate: its coded bytes (colour and, when coded, VNDF payloads) and its error, its
+/// tensors decoded and evaluated as its reader will.
+struct Trial {
+    payload_bytes: usize,
+    estimate: Estimate,
+}
+
+/// Plans the smallest packed file of `source` meeting the budget, or the lossless one
+/// (`lossless`: every field stored, bit-exact evaluation).
+pub fn plan_rgl(
+    source: &RglBsdf,
+    settings: &PackSettings,
+    lossless: bool,
+    provenance: &Provenance,
+    progress: Progress,
+) -> Result<RglPlanned> {
+    if let Some(why) = unsupported(source) {
+        return Err(Error::input(format!(
+            "an RGL file cannot be packed in its own parameterization: {why}"
+        )));
+    }
+    let mut timings = Vec::new();
+    let fields = source.fields();
+    let what = source.description();
+    let cname = colour_name(fields);
+    let colour_field = fields.require(cname, what)?;
+    let (dims, channels) = colour_dims(&colour_field.shape).ok_or_else(|| {
+        Error::input(format!(
+            "field `{cname}`: shape {:?}, expected [phi_i, theta_i, channels, n, n]",
+            colour_field.shape
+        ))
+    })?;
+    let colour = fields.f32_of(cname, what)?;
+
+    let t = Instant::now();
+    progress("evaluating the source on the estimation and check sets");
+    let pairs = if settings.effort == Effort::Max {
+        2 * ESTIMATE_PAIRS
+    } else {
+        ESTIMATE_PAIRS
+    };
+    let reference = ReferenceSet::new(source, pairs);
+    let check = ReferenceSet::uniform(source, settings.check_samples, settings.check_seed);
+    let est = PairEstimator::new(&reference, Some(&check), check.len().max(1));
+    timings.push(("reference values".to_string(), t.elapsed().as_secs_f64()));
+
+    let mut attempts = Vec::new();
+    let file = |opts: &PackOptions| packed::to_bytes(fields, opts, provenance);
+    if lossless {
+        let opts = PackOptions::lossless();
+        let bytes = file(&opts)?;
+        let estimate = est.measure(source)?;
+        attempts.push(RglAttempt {
+            step: None,
+            eps_share: None,
+            deadzone: None,
+            vndf: "stored",
+            payload_bytes: bytes.len(),
+            accepted: true,
+        });
+        return Ok(RglPlanned {
+            bytes,
+            options: opts,
+            floor: estimate.clone(),
+            estimate,
+            attempts,
+            timings,
+            estimate_samples: est.samples(),
+        });
+    }
+
+    // The VNDF derived from the NDF, measured with the exact colour tensor: kept when that
+    // form alone meets the budget (files brdfpack's own writer makes hold another density).
+    let t = Instant::now();
+    progress("measuring the derived VNDF");
+    let derived = RglBsdf::from_fields(with_derived_vndf(fields, what)?, what)?;
+    let derived_floor = est.measure(&derived)?;
+    timings.push(("derived VNDF".to_string(), t.elapsed().as_secs_f64()));
+    let mut forms = Vec::new();
+    if accepts(&settings.budget, &derived_floor) {
+        forms.push((Form::Derived, derived, derived_floor));
+    }
+    // Otherwise (or when no step meets the budget with the derived one) the file's own VNDF,
+    // coded with the colours; stored exactly when no coding of it meets the budget.
+    let vndf = fields.f32_of("vndf", what)?;
+    let vdims = vndf_dims(&fields.require("vndf", what)?.shape);
+    let exact_floor = est.measure(source)?;
+    if vdims.is_some() {
+        forms.push((Form::Coded, source.clone(), exact_floor.clone()));
+    }
+    forms.push((Form::Stored, source.clone(), exact_floor));
+
+    let t = Instant::now();
+    let mut best: Option<(PackOptions, Estimate, Estimate, usize)> = None;
+    let mut start = first_step(&settings.budget);
+    for (form, base, floor) in forms {
+        progress(&format!(
+            "coding the colour tensor (VNDF {})",
+            form.vndf(None).name()
+        ));
+        for &(eps_share, deadzone) in variants(settings.effort) {
+            // The VNDF, when coded, with the colours' step and ε rule: both are densities or
+            // values whose relative errors the log curve measures.
+            let options_for = |step: f64| PackOptions {
+                coding: TensorCoding::dct_for(&colour, &dims, channels, eps_share, step, deadzone),
+                vndf: form.vndf(
+                    vdims
+                        .as_ref()
+                        .map(|d| TensorCoding::dct_for(&vndf, d, 1, eps_share, step, deadzone)),
+                ),
+                derive_luminance: true,
+            };
+            let mut trial = |step: f64| -> Result<Trial> {
+                let opts = options_for(step);
+                let payload = opts.coding.encode(&colour, &dims, channels)?;
+                let decoded = opts.coding.decode(&payload, &dims, channels)?;
+                let (cand, extra) = match (&opts.vndf, &vdims) {
+                    // The reader's fields: the decoded colours and VNDF (clamped as it clamps).
+                    (VndfPacking::Coded(vc), Some(d)) => {
+                        let vp = vc.encode(&vndf, d, 1)?;
+                        let v = decode_vndf(vc, &vp, d)?;
+                        let mut f = fields.clone();
+                        let shape = |n: &str| fields.get(n).map(|f| f.shape.clone());
+                        f.put(
+                            RawField::f32(cname, shape(cname).unwrap_or_default(), &decoded),
+                            0,
+                        );
+                        f.put(
+                            RawField::f32("vndf", shape("vndf").unwrap_or_default(), &v),
+                            0,
+                        );
+                        (RglBsdf::from_fields(f, what)?, vp.len())
+                    }
+                    _ => (base.with_colour(&decoded)?, 0),
+                };
+                let estimate = est.measure_within(&cand, Some(&settings.budget))?;
+                attempts.push(RglAttempt {
+                    step: Some(step),
+                    eps_share: Some(eps_share),
+                    deadzone: Some(deadzone),
+                    vndf: opts.vndf.name(),
+                    payload_bytes: payload.len() + extra,
+                    accepted: accepts(&settings.budget, &estimate),
+                });
+                Ok(Trial {
+                    payload_bytes: payload.len() + extra,
+                    estimate,
+                })
+            };
+            let Some((step, tr)) = largest_step(&settings.budget, start, &mut trial)? else {
+                continue;
+            };
+            // The next variant's bracket starts here (the steps of a budget are close).
+            start = step;
+            if best.as_ref().is_none_or(|b| tr.payload_bytes < b.3) {
+                best = Some((
+                    options_for(step),
+                    tr.estimate,
+                    floor.clone(),
+                    tr.payload_bytes,
+                ));
+            }
+        }
+        // The forms come smallest first: a derived VNDF (nothing stored) before a coded one
+        // before its f32 values.
+        if best.is_some() {
+            break;
+        }
+    }
+    timings.push(("colour coding".to_string(), t.elapsed().as_secs_f64()));
+    let Some((options, estimate, floor, _)) = best else {
+        return Err(Error::Failure(format!(
+            "--max-error: no coding of the RGL file meets {} (the finest step tried misses it); \
+             --codec lossless keeps it exactly",
+            settings.budget.describe()
+        )));
+    };
+    let mut bytes = file(&options)?;
+    // Lossless, when it is the smaller file (a tiny tensor): exact, so within any budget.
+    let exact = file(&PackOptions::lossless())?;
+    let (options, estimate, floor) = if exact.len() < bytes.len() {
+        bytes = exact;
+        let e = est.measure(source)?;
+        (PackOptions::lossless(), e.clone(), e)
+    } else {
+        (options, estimate, floor)
+    };
+    Ok(RglPlanned {
+        bytes,
+        options,
+        estimate,
+        floor,
+        attempts,
+        timings,
+        estimate_samples: est.samples(),
+    })
+}
+
+/// The first step tried when no variant has been measured yet: the coding error of a step s
+/// is about s/√12 in the log domain per node (uniform quantization of orthonormal
+/// coefficients), a relative error of the colour values; `p99_rel_core` asks for about 2.58
+/// RMS of a normal error below its bound b (s = √12·b/2.58), the relative RMS metrics for an
+/// RMS below b (s = √12·b), and `log_rmse` alone, which shrinks relative errors of dark
+/// values, for the same. Only where the bracket starts: every step is measured.
+fn first_step(budget: &Budget) -> f64 {
+    let s12 = 12f64.sqrt();
+    let of = |k: &str| budget.bounds.iter().find(|(n, _)| n == k).map(|(_, b)| *b);
+    let guess = of("p99_rel_core")
+        .map(|b| s12 * b / 2.58)
+        .or(of("rel_rmse_core").map(|b| s12 * b))
+        .or(of("rel_rmse").map(|b| s12 * b))
+        .or(of("log_rmse").map(|b| s12 * b))
+        .unwrap_or(0.01);
+    if guess > 0.0 {
+        guess.min(MAX_STEP)
+    } else {
+        0.01
+    }
+}
+
+/// The coding variants measured, (ε share, dead zone): ε at the metrics' own 10⁻³ of the mean
+/// and one and 1.5 decades above, with plain rounding; `--effort max` also the coders' default
+/// dead zone; `fast` the middle ε alone. Which makes the smallest file depends on the file
+/// (how much a dark node's relative error reaches the metrics depends on how many pairs the
+/// warp sends to it and on the bright nodes it is blended with), so it is measured, not set.
+fn variants(effort: Effort) -> &'static [(f64, f64)] {
+    match effort {
+        Effort::Fast => &[(1e-2, 0.5)],
+        Effort::Default => &[(1e-2, 0.5), (1e-3, 0.5), (3e-2, 0.5)],
+        Effort::Max => &[
+            (1e-2, 0.5),
+            (1e-3, 0.5),
+            (3e-2, 0.5),
+            (1e-2, DEFAULT_DEADZONE),
+            (3e-2, DEFAULT_DEADZONE),
+        ],
+    }
+}
+
+/// Steps are tried down to this (log units: a relative 3e-7, f32's own precision) before the
+/// coding is given up.
+const MIN_STEP: f64 = 1e-6;
+/// Above this the log-domain coding holds hardly more than the mean (a factor e^8 per node).
+const MAX_STEP: f64 = 8.0;
+/// Bisection halvings of the bracket (a factor 2 at the start: 2^(1/16) at the end, a few
+/// percent of size).
+const BISECTIONS: usize = 4;
+
+/// The largest step (to a factor 2^(1/16)) whose trial meets the budget, with that trial;
+/// `None` when none down to [`MIN_STEP`] does. The error grows with the step (not strictly:
+/// the bracket's accepted end is always a measured, accepted step).
+fn largest_step(
+    budget: &Budget,
+    start: f64,
+    trial: &mut impl FnMut(f64) -> Result<Trial>,
+) -> Result<Option<(f64, Trial)>> {
+    let mut step = start;
+    let first = trial(step)?;
+    let (mut good, mut bad) = if accepts(budget, &first.estimate) {
+        // Grow until a step misses.
+        let mut good = (step, first);
+        let mut bad = None;
+        while step < MAX_STEP {
+            step *= 2.0;
+            let t = trial(step)?;
+            if accepts(budget, &t.estimate) {
+                good = (step, t);
+            } else {
+                bad = Some(step);
+                break;
+            }
+        }
+        match bad {
+            Some(b) => (good, b),
+            None => return Ok(Some(good)),
+        }
+    } else {
+        // Shrink until a step meets it.
+        let mut bad = step;
+        loop {
+            step /= 2.0;
+            if step < MIN_STEP {
+                return Ok(None);
+            }
+            let t = trial(step)?;
+            if accepts(budget, &t.estimate) {
+                break ((step, t), bad);
+            }
+            bad = step;
+        }
+    };
+    for _ in 0..BISECTIONS {
+        let mid = (good.0 * bad).sqrt();
+        let t = trial(mid)?;
+        if accepts(budget, &t.estimate) {
+            good = (mid, t);
+        } else {
+            bad = mid;
+        }
+    }
+    Ok(Some(good))
+}
