@@ -616,39 +616,17 @@ fn tables_readers_refuse_it_and_damage_is_an_error() {
         (
             "missing field",
             with_header(&bytes, |h| {
-                h["fields"] = serde_json::json!([
-                    "version",
-                    "description",
-                    "phi_i",
-                    "theta_i",
-                    "sigma",
-                    "ndf",
-                    "vndf",
-                    "luminance",
-                    "rgb",
-                    "jacobian",
-                    "valid",
-                    "more"
-                ])
+                let mut fields = packed::RGL_ORDER.to_vec();
+                fields.push("more");
+                h["fields"] = serde_json::json!(fields)
             }),
         ),
         (
             "duplicate field",
             with_header(&bytes, |h| {
-                h["fields"] = serde_json::json!([
-                    "version",
-                    "description",
-                    "phi_i",
-                    "theta_i",
-                    "sigma",
-                    "ndf",
-                    "vndf",
-                    "luminance",
-                    "rgb",
-                    "jacobian",
-                    "valid",
-                    "rgb"
-                ])
+                let mut fields = packed::RGL_ORDER.to_vec();
+                fields.push("rgb");
+                h["fields"] = serde_json::json!(fields)
             }),
         ),
     ];

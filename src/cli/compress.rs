@@ -305,14 +305,7 @@ fn run_budget(
         "samples": a.samples,
         "seed": a.seed,
     });
-    let values = |m: &crate::check::Metrics| {
-        budget
-            .bounds
-            .iter()
-            .map(|(k, _)| format!("{k} {}", crate::check::fmt_num(m.get(k))))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
+    let values = |m: &crate::check::Metrics| super::pack::budget_values(&budget.bounds, m);
     use std::fmt::Write as _;
     let mut r = String::new();
     writeln!(r, "output: {}", a.output.display())?;
@@ -390,14 +383,7 @@ fn compress_rgl(
         "samples": a.samples,
         "seed": a.seed,
     });
-    let values = |m: &crate::check::Metrics| {
-        budget
-            .bounds
-            .iter()
-            .map(|(k, _)| format!("{k} {}", crate::check::fmt_num(m.get(k))))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
+    let values = |m: &crate::check::Metrics| super::pack::budget_values(&budget.bounds, m);
     use std::fmt::Write as _;
     let mut r = String::new();
     writeln!(r, "output: {}", a.output.display())?;

@@ -389,27 +389,9 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     )?;
     timings.push(("check".to_string(), t3.elapsed().as_secs_f64()));
     // The planner measured these very bytes on this very set (same pairs, same
-    // interpolation): a mismatch would be a bug, and a file that misses its budget must never
-    // be written.
-    if let Some(b) = &budget
-        && !b.met_by(&report.uniform.combined)
-    {
-        return Err(crate::Error::Failure(format!(
-            "--max-error: the packed file misses the budget against the source on the check \
-             ({}); no file written",
-            b.exceeded(&report.uniform.combined).join(", ")
-        ))
-        .into());
-    }
-    let failed = verdict(&report, &a.bounds);
-    if !failed.is_empty() {
-        // A failed bound never replaces a good file.
-        eprintln!(
-            "brdfpack: bounds exceeded: {}; {} not written",
-            failed.join("; "),
-            a.output.display()
-        );
-        return Ok(1);
+    // interpolation): a file that misses its budget, or a --max-* bound, is never written.
+    if let Some(code) = refused(&report, budget.as_ref(), &a)? {
+        return Ok(code);
     }
     atomic::write_output(&a.output, &bytes)?;
     a.depfile.write(&[a.output.as_path()], &reads)?;
@@ -432,7 +414,8 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         encode_s,
         decode_s,
         check: report,
-        bounds_exceeded: failed,
+        // A file is written only within every bound (`refused`).
+        bounds_exceeded: Vec::new(),
         budget: budget_report,
         scene: scene_report,
         timings,
@@ -448,14 +431,20 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         eprint!("{}", human(&r));
     }
     if a.json {
-        let json = format!("{}\n", serde_json::to_string(&r)?);
-        if a.output.as_os_str() == "-" {
-            eprint!("{json}");
-        } else {
-            out!("{json}");
-        }
+        print_json(&r, &a)?;
     }
     Ok(0)
+}
+
+/// The JSON report on stdout, or on stderr when stdout holds the file (`-o -`).
+pub(crate) fn print_json<T: Serialize>(r: &T, a: &PackArgs) -> anyhow::Result<()> {
+    let json = format!("{}\n", serde_json::to_string(r)?);
+    if a.output.as_os_str() == "-" {
+        eprint!("{json}");
+    } else {
+        out!("{json}");
+    }
+    Ok(())
 }
 
 fn human(r: &PackReport) -> String {
@@ -480,43 +469,24 @@ fn human(r: &PackReport) -> String {
         r.tabulate_s, r.encode_s, r.decode_s
     );
     if let Some(b) = &r.budget {
-        let values = |m: &crate::check::Metrics| {
-            b.bounds
-                .iter()
-                .map(|(k, _)| format!("{k} {}", fmt_num(m.get(k))))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let bounds: Vec<String> = b.bounds.iter().map(|(k, v)| format!("{k} ≤ {v}")).collect();
-        let _ = writeln!(
-            s,
-            "budget        {}{}: met by the written file against the source",
-            bounds.join(", "),
-            if b.default {
-                " (default; --max-error or --codec to change)"
-            } else {
-                ""
+        let values = |m: &crate::check::Metrics| budget_values(&b.bounds, m);
+        write_budget(
+            &mut s,
+            &BudgetLines {
+                bounds: &b.bounds,
+                default: b.default,
+                file: &b.file,
+                samples: b.samples,
+                confidence_z: b.confidence_z,
+                estimate_samples: b.estimate_samples,
+                file_is: "grid + compression",
+                alone: (
+                    "grid alone",
+                    b.grid_alone.check.as_ref().unwrap_or(&b.grid_alone.metrics),
+                    "the uncompressed table against the source: what the grid and its \
+                     interpolation cost before compression",
+                ),
             },
-        );
-        if let Some(c) = &b.file.check {
-            let _ = writeln!(
-                s,
-                "  file        {} on the check set below (the file against the source: grid + compression)",
-                values(c)
-            );
-        }
-        let _ = writeln!(
-            s,
-            "              {} at most on any independent uniform set of {} pairs ({}σ upper values from {} stratified pairs)",
-            values(&b.file.upper),
-            b.samples,
-            b.confidence_z,
-            b.estimate_samples
-        );
-        let _ = writeln!(
-            s,
-            "  grid alone  {} (the uncompressed table against the source: what the grid and its interpolation cost before compression)",
-            values(b.grid_alone.check.as_ref().unwrap_or(&b.grid_alone.metrics))
         );
         if b.grids.len() > 1 {
             for g in &b.grids {
@@ -587,4 +557,97 @@ fn human(r: &PackReport) -> String {
         let _ = writeln!(s, "verdict       FAIL ({})", r.bounds_exceeded.join("; "));
     }
     s
+}
+
+/// Whether the written file's check refuses it: an error when the budget is missed (the
+/// planner measured these very bytes on this set, so that would be a bug), `Some(1)` after
+/// saying so when a `--max-*` bound is exceeded (a failed bound never replaces a good file),
+/// `None` when it may be written.
+pub(crate) fn refused(
+    report: &crate::check::CheckReport,
+    budget: Option<&Budget>,
+    a: &PackArgs,
+) -> anyhow::Result<Option<i32>> {
+    if let Some(b) = budget
+        && !b.met_by(&report.uniform.combined)
+    {
+        return Err(crate::Error::Failure(format!(
+            "--max-error: the packed file misses the budget against the source on the check \
+             ({}); no file written",
+            b.exceeded(&report.uniform.combined).join(", ")
+        ))
+        .into());
+    }
+    let failed = verdict(report, &a.bounds);
+    if !failed.is_empty() {
+        eprintln!(
+            "brdfpack: bounds exceeded: {}; {} not written",
+            failed.join("; "),
+            a.output.display()
+        );
+        return Ok(Some(1));
+    }
+    Ok(None)
+}
+
+/// The bounded metrics' values of `m`, `name value, …` in the budget's order.
+pub(crate) fn budget_values(bounds: &[(String, f64)], m: &crate::check::Metrics) -> String {
+    bounds
+        .iter()
+        .map(|(k, _)| format!("{k} {}", fmt_num(m.get(k))))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// What a pack report's budget lines say: the bounds, the written file's error (on the check
+/// set and as upper values), and what the representation alone costs.
+pub(crate) struct BudgetLines<'a> {
+    pub bounds: &'a [(String, f64)],
+    pub default: bool,
+    pub file: &'a Estimate,
+    pub samples: usize,
+    pub confidence_z: f64,
+    pub estimate_samples: usize,
+    /// What the file's error is made of, in words (`grid + compression`).
+    pub file_is: &'a str,
+    /// (label, metrics, what they are) of the representation before coding.
+    pub alone: (&'a str, &'a crate::check::Metrics, &'a str),
+}
+
+/// The budget lines of a pack report (`pack` on a grid and an RGL file in its own form).
+pub(crate) fn write_budget(s: &mut String, b: &BudgetLines) {
+    use std::fmt::Write as _;
+    let bounds: Vec<String> = b.bounds.iter().map(|(k, v)| format!("{k} ≤ {v}")).collect();
+    let _ = writeln!(
+        s,
+        "budget        {}{}: met by the written file against the source",
+        bounds.join(", "),
+        if b.default {
+            " (default; --max-error or --codec to change)"
+        } else {
+            ""
+        },
+    );
+    if let Some(c) = &b.file.check {
+        let _ = writeln!(
+            s,
+            "  file        {} on the check set below (the file against the source: {})",
+            budget_values(b.bounds, c),
+            b.file_is
+        );
+    }
+    let _ = writeln!(
+        s,
+        "              {} at most on any independent uniform set of {} pairs ({}σ upper values from {} stratified pairs)",
+        budget_values(b.bounds, &b.file.upper),
+        b.samples,
+        b.confidence_z,
+        b.estimate_samples
+    );
+    let (label, alone, what) = b.alone;
+    let _ = writeln!(
+        s,
+        "  {label:<11} {} ({what})",
+        budget_values(b.bounds, alone)
+    );
 }

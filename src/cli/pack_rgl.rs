@@ -2,7 +2,6 @@
 //! parameterization (`plan::rgl`, issue #19), written, read back and checked against the
 //! source as `pack` does for tables.
 
-use super::check::verdict;
 use super::pack::PackArgs;
 use crate::brdf::Brdf;
 use crate::check::{CheckOptions, check, fmt_num};
@@ -111,26 +110,8 @@ pub fn run(
         },
     )?;
     timings.push(("check".to_string(), t.elapsed().as_secs_f64()));
-    // The planner measured these very bytes on this very set: a file that misses its budget
-    // is never written.
-    if let Some(b) = &budget
-        && !b.met_by(&report.uniform.combined)
-    {
-        return Err(crate::Error::Failure(format!(
-            "--max-error: the packed file misses the budget against the source on the check \
-             ({}); no file written",
-            b.exceeded(&report.uniform.combined).join(", ")
-        ))
-        .into());
-    }
-    let failed = verdict(&report, &a.bounds);
-    if !failed.is_empty() {
-        eprintln!(
-            "brdfpack: bounds exceeded: {}; {} not written",
-            failed.join("; "),
-            a.output.display()
-        );
-        return Ok(1);
+    if let Some(code) = super::pack::refused(&report, budget.as_ref(), a)? {
+        return Ok(code);
     }
     atomic::write_output(&a.output, &planned.bytes)?;
     a.depfile.write(&[a.output.as_path()], reads)?;
@@ -148,7 +129,8 @@ pub fn run(
         encode_s,
         decode_s,
         check: report,
-        bounds_exceeded: failed,
+        // A file is written only within every bound (`refused`).
+        bounds_exceeded: Vec::new(),
         budget: budget.as_ref().map(|b| RglBudgetReport {
             bounds: b.bounds.clone(),
             default: default_budget,
@@ -171,12 +153,7 @@ pub fn run(
         eprint!("{}", human(&r));
     }
     if a.json {
-        let json = format!("{}\n", serde_json::to_string(&r)?);
-        if a.output.as_os_str() == "-" {
-            eprint!("{json}");
-        } else {
-            out!("{json}");
-        }
+        super::pack::print_json(&r, a)?;
     }
     Ok(0)
 }
@@ -216,44 +193,26 @@ fn human(r: &RglPackReport) -> String {
         r.encode_s, r.decode_s
     );
     if let Some(b) = &r.budget {
-        let values = |m: &crate::check::Metrics| {
-            b.bounds
-                .iter()
-                .map(|(k, _)| format!("{k} {}", fmt_num(m.get(k))))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let bounds: Vec<String> = b.bounds.iter().map(|(k, v)| format!("{k} ≤ {v}")).collect();
-        let _ = writeln!(
-            s,
-            "budget        {}{}: met by the written file against the source",
-            bounds.join(", "),
-            if b.default {
-                " (default; --max-error or --codec to change)"
-            } else {
-                ""
-            },
-        );
-        if let Some(c) = &b.file.check {
-            let _ = writeln!(
-                s,
-                "  file        {} on the check set below (the file against the source)",
-                values(c)
-            );
-        }
-        let _ = writeln!(
-            s,
-            "              {} at most on any independent uniform set of {} pairs ({}σ upper values from {} pairs)",
-            values(&b.file.upper),
-            b.samples,
-            b.confidence_z,
-            b.estimate_samples
-        );
-        let _ = writeln!(
-            s,
-            "  form alone  {} (exact colour values, VNDF {}: what the parameterization costs before coding)",
-            values(b.form_alone.check.as_ref().unwrap_or(&b.form_alone.metrics)),
+        let what = format!(
+            "exact colour values, VNDF {}: what the parameterization costs before coding",
             r.vndf
+        );
+        super::pack::write_budget(
+            &mut s,
+            &super::pack::BudgetLines {
+                bounds: &b.bounds,
+                default: b.default,
+                file: &b.file,
+                samples: b.samples,
+                confidence_z: b.confidence_z,
+                estimate_samples: b.estimate_samples,
+                file_is: "the parameterization + compression",
+                alone: (
+                    "form alone",
+                    b.form_alone.check.as_ref().unwrap_or(&b.form_alone.metrics),
+                    &what,
+                ),
+            },
         );
     }
     let _ = writeln!(
