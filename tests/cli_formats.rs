@@ -212,3 +212,47 @@ fn conversion_errors_exit_2_with_a_message() {
     // Nothing was left behind by the failed writes.
     assert!(!d.path().join("x.binary").exists());
 }
+
+/// A non-reciprocal measured file (an RGL `.bsdf`) without `--grid`: `tabulate`, `convert`
+/// to EXR and `compress` store it on the planner's grid for such sources (spherical3, no
+/// reciprocity fold) instead of refusing MERL's φd fold (exit 2 until a grid was named);
+/// an isotropic reciprocal model keeps MERL's grid.
+#[test]
+fn a_measured_file_without_a_grid_goes_on_a_grid_that_keeps_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let rgl = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/tiny.bsdf");
+    let rgl = rgl.to_str().unwrap();
+    let kind = |p: &Path| {
+        inspect_json(p)["grid_desc"]["kind"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    let t = dir.path().join("t.bpk");
+    brdfpack()
+        .args(["tabulate", rgl, "-o"])
+        .arg(&t)
+        .assert()
+        .success();
+    assert_eq!(kind(&t), "spherical3");
+    let e = dir.path().join("t.exr");
+    convert(&[], rgl, &e);
+    assert_eq!(kind(&e), "spherical3");
+    let c = dir.path().join("c.bpk");
+    brdfpack()
+        .args(["compress", rgl, "--codec", "lossless", "-o"])
+        .arg(&c)
+        .assert()
+        .success();
+    assert_eq!(kind(&c), "spherical3");
+    let m = dir.path().join("m.bpk");
+    brdfpack()
+        .args(["tabulate", MODEL, "-o"])
+        .arg(&m)
+        .assert()
+        .success();
+    assert_eq!(
+        inspect_json(&m)["grid"].as_str().unwrap(),
+        "halfdiff3 90x90x180 (warp sqrt/linear/linear; at edge/edge/edge)"
+    );
+}

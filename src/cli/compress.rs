@@ -90,7 +90,11 @@ fn read_table(
         }
         other => {
             let src = scene.restrict_source(other.into_brdf(Lookup::Linear)?)?;
-            let grid = scene.restrict_grid(&parse_grid_spec(grid.unwrap_or("merl"))?)?;
+            let grid = match grid {
+                Some(g) => parse_grid_spec(g)?,
+                None => crate::plan::grids::table_default_grid(src.as_ref())?,
+            };
+            let grid = scene.restrict_grid(&grid)?;
             let t = tabulate(src.as_ref(), &grid, &symmetry.options(bar.cells()));
             bar.finish();
             Ok(t?)
@@ -270,8 +274,11 @@ fn run_budget(
         }
         other => {
             let src = scene.restrict_source(other.into_brdf(Lookup::Linear)?)?;
-            let grid =
-                scene.restrict_grid(&parse_grid_spec(a.grid.as_deref().unwrap_or("merl"))?)?;
+            let grid = match a.grid.as_deref() {
+                Some(g) => parse_grid_spec(g)?,
+                None => crate::plan::grids::table_default_grid(src.as_ref())?,
+            };
+            let grid = scene.restrict_grid(&grid)?;
             plan(
                 PackInput::Source {
                     source: src.as_ref(),

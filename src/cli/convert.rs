@@ -80,6 +80,9 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
             t.grid().clone()
         }
         (None, _) if format == Some(FormatName::Mbsdf) => parse_grid_spec(MBSDF_DEFAULT_GRID)?,
+        (None, _) if format == Some(FormatName::Merl) => Grid::merl(),
+        (None, Source::Measured(m)) => crate::plan::grids::table_default_grid(m)?,
+        (None, Source::Model(m)) => crate::plan::grids::table_default_grid(m)?,
         (None, _) => Grid::merl(),
     };
     let output = a.out.resolve(&a.output, &grid)?;

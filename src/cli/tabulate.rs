@@ -16,8 +16,12 @@ pub struct TabulateArgs {
     /// Grid: `merl` or KIND:DIMS[,warp=..][,at=center|edge][,theta-max=DEG][,weight=none|cosine][,space=linear|log:S]
     /// [,horizon=cut|extend] (KIND spherical4|spherical3|halfdiff3|halfdiff4; see
     /// docs/parameterizations.md).
-    #[arg(long, default_value = "merl")]
-    pub grid: String,
+    ///
+    /// Default: `merl` for an isotropic reciprocal source; otherwise the planner's default
+    /// (`spherical3:90x90x180` for an isotropic non-reciprocal one such as an RGL file,
+    /// `halfdiff4:64,warp=linear/linear/grazing/linear` for an anisotropic one).
+    #[arg(long)]
+    pub grid: Option<String>,
     /// Output file (`-` for stdout: native format unless --format says otherwise).
     #[arg(short, long)]
     pub output: PathBuf,
@@ -50,14 +54,19 @@ pub struct TabulateArgs {
 pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
     let mut reads = crate::reads::ReadSet::new();
     let scene = a.scene.load(&mut reads)?;
-    let grid = scene.restrict_grid(&parse_grid_spec(&a.grid)?)?;
-    let format = a.out.resolve(&a.output, &grid)?;
+    let given = a.grid.as_deref().map(parse_grid_spec).transpose()?;
     let src = a
         .symmetry
         .apply(Source::open_recording(&a.source, &mut reads)?)
         .into_brdf(a.interp.into())?;
     let full_channels = src.channels().clone();
     let src = scene.restrict_source(src)?;
+    let grid = match given {
+        Some(g) => g,
+        None => crate::plan::grids::table_default_grid(src.as_ref())?,
+    };
+    let grid = scene.restrict_grid(&grid)?;
+    let format = a.out.resolve(&a.output, &grid)?;
     let mut symmetry = a.symmetry.clone();
     if scene.isotropic == Some(true) {
         symmetry.allow_anisotropic = true;

@@ -45,6 +45,18 @@ pub fn default_grid(src: &dyn Brdf) -> crate::Result<crate::grid::Grid> {
     within_source_domain(crate::grid::parse_grid_spec(default_grid_spec(src))?, src)
 }
 
+/// The grid `tabulate`, `convert` and `compress` store a source on when none is given: MERL's
+/// for an isotropic reciprocal source (as these commands always did), else the planner's
+/// default ([`default_grid`]): an RGL file is not reciprocal, and MERL's reciprocity fold of
+/// φd refused it (exit 2) until the user named a grid.
+pub fn table_default_grid(src: &dyn Brdf) -> crate::Result<crate::grid::Grid> {
+    if src.is_isotropic() && src.is_reciprocal() {
+        Ok(crate::grid::Grid::merl())
+    } else {
+        default_grid(src)
+    }
+}
+
 /// `grid` stored only up to `src`'s θmax when the source has one (the smaller of the two
 /// limits; `check` compares within both domains the same way).
 pub fn within_source_domain(
