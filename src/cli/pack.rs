@@ -512,28 +512,7 @@ fn human(r: &PackReport) -> String {
         u.seed.unwrap_or(0),
         u.combined.epsilon
     );
-    let worst = r.check.worst_other.as_ref();
-    for name in [
-        "log_rmse",
-        "rmse",
-        "rel_rmse",
-        "max_abs",
-        "max_rel",
-        "rel_rmse_core",
-        "p99_rel_core",
-        "nonfinite",
-        "negative",
-    ] {
-        let v = fmt_num(u.combined.get(name));
-        let _ = match worst.and_then(|w| w.get(name)) {
-            Some(w) => writeln!(
-                s,
-                "{name:<13} {v:<11}  (worst of grazing/specular/cells: {})",
-                fmt_num(Some(w))
-            ),
-            None => writeln!(s, "{name:<13} {v}"),
-        };
-    }
+    write_check_metrics(&mut s, &u.combined, r.check.worst_other.as_ref());
     if let Some(sc) = &r.scene {
         let _ = writeln!(
             s,
@@ -588,6 +567,37 @@ pub(crate) fn refused(
         return Ok(Some(1));
     }
     Ok(None)
+}
+
+/// The check's metric lines of a pack report: each metric on the uniform set, and the worst
+/// of the other sets beside it when they were run.
+pub(crate) fn write_check_metrics(
+    s: &mut String,
+    uniform: &crate::check::Metrics,
+    worst: Option<&crate::check::Metrics>,
+) {
+    use std::fmt::Write as _;
+    for name in [
+        "log_rmse",
+        "rmse",
+        "rel_rmse",
+        "max_abs",
+        "max_rel",
+        "rel_rmse_core",
+        "p99_rel_core",
+        "nonfinite",
+        "negative",
+    ] {
+        let v = fmt_num(uniform.get(name));
+        let _ = match worst.and_then(|w| w.get(name)) {
+            Some(w) => writeln!(
+                s,
+                "{name:<13} {v:<11}  (worst of grazing/specular/cells: {})",
+                fmt_num(Some(w))
+            ),
+            None => writeln!(s, "{name:<13} {v}"),
+        };
+    }
 }
 
 /// The bounded metrics' values of `m`, `name value, …` in the budget's order.

@@ -4,7 +4,7 @@
 
 use super::pack::PackArgs;
 use crate::brdf::Brdf;
-use crate::check::{CheckOptions, check, fmt_num};
+use crate::check::{CheckOptions, check};
 use crate::codec::tensor::TensorCoding;
 use crate::io::atomic;
 use crate::io::rgl::RglBsdf;
@@ -222,19 +222,7 @@ fn human(r: &RglPackReport) -> String {
         u.seed.unwrap_or(0),
         u.combined.epsilon
     );
-    for name in [
-        "log_rmse",
-        "rmse",
-        "rel_rmse",
-        "max_abs",
-        "max_rel",
-        "rel_rmse_core",
-        "p99_rel_core",
-        "nonfinite",
-        "negative",
-    ] {
-        let _ = writeln!(s, "{name:<13} {}", fmt_num(u.combined.get(name)));
-    }
+    super::pack::write_check_metrics(&mut s, &u.combined, None);
     if !r.bounds_exceeded.is_empty() {
         let _ = writeln!(s, "verdict       FAIL ({})", r.bounds_exceeded.join("; "));
     }

@@ -40,6 +40,11 @@ pub enum TensorCoding {
         step: f64,
         /// Dead zone in steps (coefficients with |c| < deadzone·step are coded as 0).
         deadzone: f64,
+        /// The source held no negative value: decoded values are clamped at 0 (the signed
+        /// curve's inverse can dip below 0 next to a node of 0, where a reader would get a
+        /// negative BRDF the source never had).
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        nonnegative: bool,
     },
 }
 
@@ -88,6 +93,7 @@ impl TensorCoding {
             colour: Colour::klt(&curved, channels),
             step,
             deadzone,
+            nonnegative: values.iter().all(|&v| v >= 0.0),
         }
     }
 
@@ -100,6 +106,7 @@ impl TensorCoding {
                 colour,
                 step,
                 deadzone,
+                ..
             } => {
                 Curve::SignedLog { eps: eps.clone() }.validate(channels)?;
                 colour.validate(channels)?;
@@ -133,6 +140,7 @@ impl TensorCoding {
                 colour,
                 step,
                 deadzone,
+                ..
             } => {
                 let curve = Curve::SignedLog { eps: eps.clone() };
                 let n: usize = dims.iter().product();
@@ -190,9 +198,14 @@ impl TensorCoding {
                 Ok(values)
             }
             TensorCoding::Dct {
-                eps, colour, step, ..
+                eps,
+                colour,
+                step,
+                nonnegative,
+                ..
             } => {
                 let curve = Curve::SignedLog { eps: eps.clone() };
+                let floor = if *nonnegative { 0.0 } else { f32::NEG_INFINITY };
                 let quantized = coefcode::decode(payload, dims, channels, ContextModel::LineEnds)?;
                 let planes: Vec<Vec<f32>> = quantized
                     .iter()
@@ -208,7 +221,8 @@ impl TensorCoding {
                     }
                     colour.inverse(&z, &mut y);
                     for (c, &yc) in y.iter().enumerate() {
-                        out[(s * channels + c) * plane + p] = finite_f32(curve.inverse(yc, c));
+                        out[(s * channels + c) * plane + p] =
+                            finite_f32(curve.inverse(yc, c)).max(floor);
                     }
                 }
                 Ok(out)
@@ -272,6 +286,64 @@ mod tests {
             }
         }
         (v, dims)
+    }
+
+    /// A tensor with no negative value (zeros beside bright nodes) decodes with none at a
+    /// coarse step, where the signed curve's inverse dips below 0 without the clamp; a
+    /// tensor that has negative values keeps them.
+    #[test]
+    fn a_nonnegative_tensor_decodes_nonnegative() {
+        let (v, dims) = sample();
+        let v: Vec<f32> = v
+            .iter()
+            .map(|&x| if x < 0.2 { 0.0 } else { x * 30.0 })
+            .collect();
+        let c = TensorCoding::dct_for(&v, &dims, 3, 1e-3, 1.5, 0.5);
+        assert!(matches!(
+            c,
+            TensorCoding::Dct {
+                nonnegative: true,
+                ..
+            }
+        ));
+        let back = c
+            .decode(&c.encode(&v, &dims, 3).unwrap(), &dims, 3)
+            .unwrap();
+        assert!(back.iter().all(|&x| x >= 0.0));
+        let TensorCoding::Dct {
+            eps,
+            colour,
+            step,
+            deadzone,
+            ..
+        } = c.clone()
+        else {
+            unreachable!()
+        };
+        let unclamped = TensorCoding::Dct {
+            eps,
+            colour,
+            step,
+            deadzone,
+            nonnegative: false,
+        };
+        let raw = unclamped
+            .decode(&unclamped.encode(&v, &dims, 3).unwrap(), &dims, 3)
+            .unwrap();
+        assert!(
+            raw.iter().any(|&x| x < 0.0),
+            "the clamp is what keeps them ≥ 0"
+        );
+        let (signed, dims) = sample();
+        assert!(signed.iter().any(|&x| x < 0.0));
+        let c = TensorCoding::dct_for(&signed, &dims, 3, 1e-3, 0.01, 0.5);
+        assert!(matches!(
+            c,
+            TensorCoding::Dct {
+                nonnegative: false,
+                ..
+            }
+        ));
     }
 
     #[test]
@@ -341,6 +413,7 @@ mod tests {
             },
             step: 0.1,
             deadzone: 0.5,
+            nonnegative: false,
         };
         assert!(bad.decode(&p, &dims, 3).is_err());
     }
