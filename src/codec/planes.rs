@@ -335,18 +335,6 @@ pub fn transform_with_curve(
     colour: bool,
     weight: Option<Weight>,
 ) -> Transform {
-    transform_with_curve_held(table, curve, colour, weight, KLT_SAMPLES_HELD)
-}
-
-/// [`transform_with_curve`] holding at most `held` bytes of the KLT's samples (0: none, the
-/// transform made again for each of its two passes): the same transform, bit for bit.
-pub fn transform_with_curve_held(
-    table: &Table,
-    curve: Curve,
-    colour: bool,
-    weight: Option<Weight>,
-    held: usize,
-) -> Transform {
     let c = table.channels().len();
     let colour = if colour && c > 1 {
         let t = Transform {
@@ -365,7 +353,7 @@ pub fn transform_with_curve_held(
                 }
             })
         };
-        if table.valid_count() * c * 8 <= held {
+        if table.valid_count() * c * 8 <= KLT_SAMPLES_HELD {
             let mut samples = Vec::with_capacity(table.valid_count() * c);
             rows(&mut |z| samples.extend_from_slice(z));
             Some(Colour::klt(&samples, c))

@@ -305,6 +305,20 @@ impl Scored {
     }
 }
 
+/// ε_low / ε for a budget on a relative metric (the curve of the ε its upper values use),
+/// else 1: [`ErrorEstimator::curve_scale`] and [`ReferenceSet::curve_scale`].
+fn curve_scale(
+    budget: &crate::plan::budget::Budget,
+    epsilon: f64,
+    epsilon_low: impl FnOnce() -> f64,
+) -> f64 {
+    if budget.bounds_relative() && epsilon > 0.0 {
+        (epsilon_low() / epsilon).min(1.0)
+    } else {
+        1.0
+    }
+}
+
 impl ReferenceSet {
     /// The estimation set: `n` pairs uniform in solid angle, stratified ([`stratified_pairs`]
     /// of [`ESTIMATE_SEED`]).
@@ -379,12 +393,9 @@ impl ReferenceSet {
     /// [`ErrorEstimator::curve_scale`] of an estimator of this set with upper values for
     /// `for_samples` pairs, before it is built.
     pub fn curve_scale(&self, budget: &crate::plan::budget::Budget, for_samples: usize) -> f64 {
-        let eps = self.epsilon();
-        if budget.bounds_relative() && eps > 0.0 {
-            (self.epsilon_low(for_samples.max(1)) / eps).min(1.0)
-        } else {
-            1.0
-        }
+        curve_scale(budget, self.epsilon(), || {
+            self.epsilon_low(for_samples.max(1))
+        })
     }
 
     /// ε of the relative metrics on this set: 1e-3 · mean |f| (`spec/metrics.md`).
@@ -551,11 +562,7 @@ impl ErrorEstimator {
     /// its error where the bound is tightest. The same value as
     /// [`ReferenceSet::curve_scale`] of this estimator's sets.
     pub fn curve_scale(&self, budget: &crate::plan::budget::Budget) -> f64 {
-        if budget.bounds_relative() && self.epsilon > 0.0 {
-            (self.epsilon_low / self.epsilon).min(1.0)
-        } else {
-            1.0
-        }
+        curve_scale(budget, self.epsilon, || self.epsilon_low)
     }
 
     /// cos θi and cos θo of the pairs and the reference values (pair-major), in the

@@ -31,7 +31,6 @@ use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
     filled_planes_f32, filled_planes_f32_in_place, refine_coefficients_f32, transform_with_curve,
-    transform_with_curve_held,
 };
 use crate::simd::dispatch;
 use crate::table::Table;
@@ -280,9 +279,8 @@ pub struct Prepared {
 
 /// The coefficients [`encode_within_lending`] starts from at `effort`, made from `table` and
 /// the metrics' ε of the estimation set (`ReferenceSet::epsilon`, which the estimator built
-/// from that set reports too), for the first curve tried (the budget's own curve,
-/// `ReferenceSet::curve_scale`, may follow); `None` when that curve's fill is refined at
-/// every step.
+/// from that set reports too); `None` when several curves are tried (the budget's own curve,
+/// `ReferenceSet::curve_scale`) or the fill is refined at every step.
 pub fn prepare_coefficients(
     table: &Table,
     epsilon: f64,
@@ -290,13 +288,11 @@ pub fn prepare_coefficients(
     effort: Effort,
     progress: Progress,
 ) -> Option<Prepared> {
-    // The first curve's coefficients (the one tried first); a second curve's are made by
-    // the rate control after it.
     let variants = effort.variants(table.grid().cells(), curve_scale);
     let scale = variants[0].eps_scale;
     if variants
         .iter()
-        .any(|v| v.eps_scale == scale && v.refine > 0)
+        .any(|v| v.eps_scale != scale || v.refine > 0)
     {
         return None;
     }
@@ -403,18 +399,8 @@ fn encode(
         && by_scale.len() == 1
         && variants.iter().all(|v| v.refine == 0);
     let lent_print = lend.then(|| fingerprint(access.table()));
-    for (i, scale) in by_scale.into_iter().enumerate() {
+    for scale in by_scale {
         let t = Instant::now();
-        if i > 0 {
-            // The last curve's coefficients are gone, and the decode buffer is made again by
-            // the first decode of this curve ([`Control::measure_payload`]): neither stays
-            // resident beside this curve's planes, made beside the estimator's stencils
-            // (the second curve's transform was the MERL-grid pack's peak, 35 MB over it).
-            if !matches!(access, Access::Lend(..)) {
-                decoded = Vec::new();
-            }
-            crate::memory::release_free_memory();
-        }
         let made = prepared
             .take()
             .filter(|p| p.scale == scale && p.epsilon == est.epsilon());
@@ -432,12 +418,11 @@ fn encode(
                         progress,
                     )
                 }
-                _ => transform_and_coefficients_held(
+                _ => transform_and_coefficients(
                     access.table(),
                     est.epsilon(),
                     scale,
                     has_negative,
-                    i == 0,
                     progress,
                 ),
             },
@@ -578,20 +563,7 @@ fn transform_and_coefficients(
     has_negative: bool,
     progress: Progress,
 ) -> (Transform, Vec<Vec<f32>>, f64) {
-    transform_and_coefficients_held(table, epsilon, scale, has_negative, true, progress)
-}
-
-/// [`transform_and_coefficients`], the colour transform's samples held or not
-/// ([`curve_transform_held`]).
-fn transform_and_coefficients_held(
-    table: &Table,
-    epsilon: f64,
-    scale: f64,
-    has_negative: bool,
-    hold: bool,
-    progress: Progress,
-) -> (Transform, Vec<Vec<f32>>, f64) {
-    let transform = curve_transform_held(table, epsilon, scale, has_negative, hold, progress);
+    let transform = curve_transform(table, epsilon, scale, has_negative, progress);
     progress("forward DCT");
     let c = table.channels().len();
     let dims = table.grid().shape();
@@ -682,20 +654,6 @@ fn curve_transform(
     has_negative: bool,
     progress: Progress,
 ) -> Transform {
-    curve_transform_held(table, epsilon, scale, has_negative, true, progress)
-}
-
-/// [`curve_transform`], the colour transform's samples held (`hold`; 27 MB in f64 on the
-/// MERL grid) or made again for each of its two passes (the same transform: a second curve
-/// is made beside the estimator's stencils, where they were the pack's peak).
-fn curve_transform_held(
-    table: &Table,
-    epsilon: f64,
-    scale: f64,
-    has_negative: bool,
-    hold: bool,
-    progress: Progress,
-) -> Transform {
     let c = table.channels().len();
     progress("transforming (log curve, colour)");
     let eps = (scale * epsilon).max(f64::MIN_POSITIVE);
@@ -707,11 +665,7 @@ fn curve_transform_held(
     } else {
         Curve::Log { eps: vec![eps; c] }
     };
-    let transform = if hold {
-        transform_with_curve(table, curve, true, None)
-    } else {
-        transform_with_curve_held(table, curve, true, None, 0)
-    };
+    let transform = transform_with_curve(table, curve, true, None);
     // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid) and
     // the estimator's construction are freed: handed back before the DCT's planes.
     crate::memory::release_free_memory();
