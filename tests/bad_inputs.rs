@@ -124,8 +124,9 @@ fn make_files(dir: &Path) {
     w("broken.json", b"{\"model\": ");
 }
 
-/// `file` (a native table) with its `HEAD` JSON replaced by `edit(HEAD)`, every length and
-/// checksum recomputed, so that only the header's content is wrong.
+/// `file` (a native table) with its header JSON replaced by `edit(header)`, every length and
+/// checksum recomputed, so that only the header's content is wrong. A compressed `HEAZ`
+/// header is written back as a plain `HEAD` (readers take either).
 fn with_header(file: &[u8], edit: impl Fn(&str) -> String) -> Vec<u8> {
     let mut out = file[..20].to_vec();
     let mut pos = 20;
@@ -133,6 +134,11 @@ fn with_header(file: &[u8], edit: impl Fn(&str) -> String) -> Vec<u8> {
         let tag = &file[pos..pos + 4];
         let len = u64::from_le_bytes(file[pos + 4..pos + 12].try_into().unwrap()) as usize;
         let mut payload = file[pos + 16..pos + 16 + len].to_vec();
+        let mut tag = tag;
+        if tag == b"HEAZ" {
+            payload = zstd::decode_all(&payload[..]).unwrap();
+            tag = b"HEAD";
+        }
         if tag == b"HEAD" {
             payload = edit(std::str::from_utf8(&payload).unwrap()).into_bytes();
         }

@@ -238,9 +238,10 @@ fn native_carries_exact_values_and_detects_their_damage() {
     };
     let t = m.to_table("small").unwrap();
     let bytes = native::to_bytes(&t, &CodecSpec::default()).unwrap();
+    // 1.1 for the F64X section; 1.2 since the header is compressed (HEAZ), which covers it.
     assert_eq!(
         u16::from_le_bytes([bytes[10], bytes[11]]),
-        1,
+        native::VERSION_MINOR_HEAZ,
         "minor version"
     );
     let back = native::from_bytes(&bytes, Path::new("x.bpk")).unwrap();
@@ -252,9 +253,15 @@ fn native_carries_exact_values_and_detects_their_damage() {
         let e = native::from_bytes(&b, Path::new("x")).unwrap_err();
         assert_eq!(e.exit_code(), 2, "flip at {i}: {e}");
     }
-    // Tables without exact values keep writing version 1.0 files.
+    // Tables without exact values write no F64X section (their version is the compressed
+    // header's, 1.2; 1.0 before it).
     let plain = native::to_bytes(&t.clone().without_exact(), &CodecSpec::default()).unwrap();
-    assert_eq!(u16::from_le_bytes([plain[10], plain[11]]), 0);
+    assert_eq!(
+        u16::from_le_bytes([plain[10], plain[11]]),
+        native::VERSION_MINOR_HEAZ
+    );
+    assert!(bytes.windows(4).any(|w| w == b"F64X"));
+    assert!(!plain.windows(4).any(|w| w == b"F64X"));
 }
 
 #[test]

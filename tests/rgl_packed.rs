@@ -442,14 +442,19 @@ fn build_packs_an_rgl_material_as_pack_does() {
     );
 }
 
-/// tiny.bsdf's VNDF is not its NDF's: the VNDF is stored (here the whole file is, the
-/// lossless form being the smaller one), and `inspect` says so.
+/// tiny.bsdf's VNDF is not its NDF's: the VNDF is kept, stored or coded (whichever whole
+/// file is the smaller one: with the compressed header the coded one is, where the plain
+/// header made the lossless file smaller), never derived, and `inspect` says which.
 #[test]
-fn a_vndf_that_is_not_derived_is_stored() {
+fn a_vndf_that_is_not_derived_is_kept() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("tiny.bpk");
     let r = pack_json(&tiny_path(), &out, &["--max-error", "preview"]);
-    assert_eq!(r["vndf"], "stored");
+    assert!(
+        r["vndf"] == "stored" || r["vndf"] == "coded",
+        "{}",
+        r["vndf"]
+    );
     let o = brdfpack()
         .arg("inspect")
         .arg(&out)
@@ -460,7 +465,7 @@ fn a_vndf_that_is_not_derived_is_stored() {
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(j["format"], "rgl");
     assert_eq!(j["packed"]["format"], "brdfpack-rgl");
-    assert_eq!(j["packed"]["vndf"], "stored");
+    assert_eq!(j["packed"]["vndf"], r["vndf"]);
     let (l, p) = check(&out, &tiny_path(), 20_000, 5);
     assert!(l <= 0.01 && p <= 0.2, "{l} {p}");
 }
@@ -508,6 +513,10 @@ fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u
         let len = u64::from_le_bytes(bytes[pos + 4..pos + 12].try_into().unwrap()) as usize;
         sections.push((tag, bytes[pos + 16..pos + 16 + len].to_vec()));
         pos += 16 + len;
+    }
+    // A compressed header (`HEAZ`) goes back as a plain `HEAD`: readers take either.
+    if sections[0].0 == *b"HEAZ" {
+        sections[0] = (*b"HEAD", zstd::decode_all(&sections[0].1[..]).unwrap());
     }
     let mut head: serde_json::Value = serde_json::from_slice(&sections[0].1).unwrap();
     edit(&mut head);

@@ -8,7 +8,8 @@
 //! sections count × { tag: 4 ASCII bytes, length: u64 LE, crc32: u32 LE (IEEE, of the payload),
 //!                    payload: length bytes }
 //! ```
-//! Sections in order: `HEAD` (UTF-8 JSON header), `DATA` (codec payload), optionally `MASK`
+//! Sections in order: `HEAD` (UTF-8 JSON header) or `HEAZ` (the same JSON, zstd-compressed;
+//! such files are version 1.2), `DATA` (codec payload), optionally `MASK`
 //! (zstd of the validity bitmap, LSB first, when it differs from the grid's geometric mask),
 //! optionally `F64X` (zstd of the table's exact f64 values, little-endian, same order as the
 //! samples, when the table carries them; such files are version 1.1), and `END ` (empty)
@@ -29,6 +30,11 @@ pub const VERSION_MAJOR: u16 = 1;
 pub const VERSION_MINOR: u16 = 0;
 /// Minor version of files with an `F64X` section (1.0 readers refuse the unknown section).
 pub const VERSION_MINOR_EXACT: u16 = 1;
+/// Minor version of files whose header is the compressed `HEAZ` section (1.0 and 1.1
+/// readers refuse the unknown section).
+pub const VERSION_MINOR_HEAZ: u16 = 2;
+/// zstd level of the `HEAZ` section (a header is about a kilobyte).
+const HEAZ_ZSTD_LEVEL: i32 = 19;
 /// zstd level of the `F64X` section: its low mantissa bits hardly compress, so a high level
 /// costs seconds on a MERL-sized table for a percent or two.
 const EXACT_ZSTD_LEVEL: i32 = 3;
@@ -94,11 +100,10 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: &[u8]) -> R
         valid_cells: table.valid_count(),
         exact: exact.map(|e| ExactDesc::new(&e.scale)),
     };
-    // Compact: the header is a third of a preview-budget file; readers take any JSON.
     let head = serde_json::to_vec(&header)
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
     let mut sections: Vec<([u8; 4], Cow<[u8]>)> =
-        vec![(*b"HEAD", head.into()), (*b"DATA", data.into())];
+        vec![head_section(head)?, (*b"DATA", data.into())];
     if mask == MaskKind::Explicit {
         let mut bits = vec![0u8; table.valid().len().div_ceil(8)];
         for (i, &v) in table.valid().iter().enumerate() {
@@ -123,8 +128,53 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: &[u8]) -> R
         }
         None => VERSION_MINOR,
     };
+    let minor = minor_for_head(sections[0].0, minor);
     sections.push((*b"END ", Cow::Borrowed(&[])));
     Ok(container(minor, &sections))
+}
+
+/// The header's section: `HEAZ` (zstd of the compact JSON `head`) when that is smaller, as it
+/// is for every real header (a kilobyte of JSON, half of a preview-budget file, codes in
+/// about 570 bytes), else `HEAD`.
+pub(crate) fn head_section(head: Vec<u8>) -> Result<([u8; 4], Cow<'static, [u8]>)> {
+    let z = zstd::bulk::compress(&head, HEAZ_ZSTD_LEVEL)
+        .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
+    Ok(if z.len() < head.len() {
+        (*b"HEAZ", z.into())
+    } else {
+        (*b"HEAD", head.into())
+    })
+}
+
+/// The minor version a file whose first section is `head_tag` needs at least.
+pub(crate) fn minor_for_head(head_tag: [u8; 4], minor: u16) -> u16 {
+    if head_tag == *b"HEAZ" {
+        minor.max(VERSION_MINOR_HEAZ)
+    } else {
+        minor
+    }
+}
+
+/// The JSON header of checked `sections` (their first): `HEAD` as it is, `HEAZ` decompressed
+/// (at most [`MAX_HEADER`] bytes).
+pub(crate) fn header_json<'a>(
+    sections: &[([u8; 4], &'a [u8])],
+    path: &Path,
+) -> Result<Cow<'a, [u8]>> {
+    let (tag, payload) = sections[0];
+    if tag != *b"HEAZ" {
+        return Ok(Cow::Borrowed(payload));
+    }
+    use std::io::Read;
+    let bad = |m: String| Error::invalid_file(path, m);
+    let mut out = Vec::new();
+    zstd::stream::read::Decoder::new(payload)
+        .and_then(|d| d.take(MAX_HEADER + 1).read_to_end(&mut out))
+        .map_err(|e| bad(format!("section \"HEAZ\": not a zstd frame ({e})")))?;
+    if out.len() as u64 > MAX_HEADER {
+        return Err(bad("header larger than 16 MiB".into()));
+    }
+    Ok(Cow::Owned(out))
 }
 
 /// The container's bytes: preamble (version 1.`minor`) and `sections` in order, each with
@@ -225,7 +275,7 @@ pub(crate) fn sections<'a>(bytes: &'a [u8], path: &Path) -> Result<Vec<([u8; 4],
         &[]
     };
     let allowed: [&[[u8; 4]]; 4] = [&[], &[*b"MASK"], &[*b"F64X"], &[*b"MASK", *b"F64X"]];
-    let ok = tags.first() == Some(b"HEAD")
+    let ok = matches!(tags.first(), Some(b"HEAD" | b"HEAZ"))
         && tags.get(1) == Some(b"DATA")
         && tags.last() == Some(b"END ")
         && allowed.contains(&middle);
@@ -235,7 +285,7 @@ pub(crate) fn sections<'a>(bytes: &'a [u8], path: &Path) -> Result<Vec<([u8; 4],
             .map(|t| String::from_utf8_lossy(t).into_owned())
             .collect();
         return Err(bad(format!(
-            "sections {names:?}: expected HEAD, DATA, [MASK,] [F64X,] END"
+            "sections {names:?}: expected HEAD (or HEAZ), DATA, [MASK,] [F64X,] END"
         )));
     }
     Ok(out)
@@ -251,17 +301,17 @@ struct Kind {
 /// checked; `None` when `bytes` are not a readable native file (its reader then says why).
 pub fn kind_of(bytes: &[u8]) -> Option<String> {
     let secs = sections(bytes, Path::new("")).ok()?;
-    let head = secs.first()?.1;
+    let head = header_json(&secs, Path::new("")).ok()?;
     if head.len() as u64 > MAX_HEADER {
         return None;
     }
-    serde_json::from_slice::<Kind>(head).ok().map(|k| k.format)
+    serde_json::from_slice::<Kind>(&head).ok().map(|k| k.format)
 }
 
 /// Parses only the header (for `inspect`).
 pub fn read_header(bytes: &[u8], path: &Path) -> Result<Header> {
     let secs = sections(bytes, path)?;
-    parse_header(secs[0].1, path)
+    parse_header(&header_json(&secs, path)?, path)
 }
 
 fn parse_header(head: &[u8], path: &Path) -> Result<Header> {
@@ -301,7 +351,7 @@ fn parse_header(head: &[u8], path: &Path) -> Result<Header> {
 /// Decodes a native file.
 pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     let secs = sections(bytes, path)?;
-    let h = parse_header(secs[0].1, path)?;
+    let h = parse_header(&header_json(&secs, path)?, path)?;
     let in_file = |e: Error| Error::invalid_file(path, e.to_string());
     let grid = Grid::from_desc(&h.grid).map_err(in_file)?;
     let declared = h.channels.names().len();
@@ -496,7 +546,9 @@ mod tests {
         let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
         assert!(t.valid().iter().all(|&v| v));
         let bytes = to_bytes(&t, &CodecSpec::default()).unwrap();
-        let text = String::from_utf8_lossy(&bytes);
+        let secs = sections(&bytes, Path::new("x")).unwrap();
+        let head = header_json(&secs, Path::new("x")).unwrap();
+        let text = String::from_utf8_lossy(&head);
         assert!(text.contains(r#""mask":"geometric""#), "{text}");
         assert!(text.contains(r#""horizon":"extend""#));
         assert_eq!(from_bytes(&bytes, Path::new("x")).unwrap(), t);
@@ -511,6 +563,53 @@ mod tests {
         let pre = crc32fast::hash(&bytes[..16]);
         bytes[16..20].copy_from_slice(&pre.to_le_bytes());
         let e = from_bytes(&bytes, Path::new("x")).unwrap_err().to_string();
-        assert!(e.contains("version 2.0 is not supported"), "{e}");
+        assert!(e.contains("version 2.2 is not supported"), "{e}");
+    }
+
+    /// The header is written compressed (`HEAZ`, version 1.2) and smaller than its JSON; the
+    /// same file with the plain `HEAD` of earlier versions (1.0) reads the same table.
+    #[test]
+    fn compressed_and_plain_headers_read_the_same() {
+        let t = small_table();
+        let bytes = to_bytes(&t, &CodecSpec::default()).unwrap();
+        assert_eq!(
+            u16::from_le_bytes([bytes[10], bytes[11]]),
+            VERSION_MINOR_HEAZ
+        );
+        let secs = sections(&bytes, Path::new("x")).unwrap();
+        assert_eq!(&secs[0].0, b"HEAZ");
+        let json = header_json(&secs, Path::new("x")).unwrap().into_owned();
+        assert!(secs[0].1.len() < json.len());
+        let plain: Vec<([u8; 4], Cow<[u8]>)> = std::iter::once((*b"HEAD", Cow::from(&json[..])))
+            .chain(secs[1..].iter().map(|(t, p)| (*t, Cow::from(*p))))
+            .collect();
+        let old = container(VERSION_MINOR, &plain);
+        assert!(old.len() > bytes.len());
+        assert_eq!(from_bytes(&old, Path::new("x")).unwrap(), t);
+        assert_eq!(kind_of(&old).as_deref(), Some("brdfpack-table"));
+        assert_eq!(kind_of(&bytes).as_deref(), Some("brdfpack-table"));
+    }
+
+    /// A `HEAZ` section that is not a zstd frame, or inflates past the header limit, is an
+    /// error naming the file (exit 2), with correct checksums around it.
+    #[test]
+    fn a_hostile_compressed_header_is_an_error() {
+        let t = small_table();
+        let bytes = to_bytes(&t, &CodecSpec::default()).unwrap();
+        let secs = sections(&bytes, Path::new("x")).unwrap();
+        let bomb = zstd::bulk::compress(&vec![b' '; (MAX_HEADER + 10) as usize], 3).unwrap();
+        for head in [b"{\"format\": 1}".to_vec(), bomb] {
+            let rest = secs[1..].iter().map(|(t, p)| (*t, Cow::from(*p)));
+            let file = container(
+                VERSION_MINOR_HEAZ,
+                &std::iter::once((*b"HEAZ", Cow::from(head)))
+                    .chain(rest)
+                    .collect::<Vec<_>>(),
+            );
+            let e = from_bytes(&file, Path::new("h.bpk")).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{e}");
+            assert!(e.to_string().contains("h.bpk"), "{e}");
+            assert!(kind_of(&file).is_none());
+        }
     }
 }

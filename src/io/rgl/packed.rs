@@ -316,15 +316,16 @@ pub fn to_bytes(
     };
     let head = serde_json::to_vec(&header)
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
+    let head = native::head_section(head)?;
     let mut data = z;
     data.extend_from_slice(&payload);
     if let Some(v) = &vndf_payload {
         data.extend_from_slice(v);
     }
     Ok(native::container(
-        VERSION_MINOR,
+        native::minor_for_head(head.0, VERSION_MINOR),
         &[
-            (*b"HEAD", Cow::from(head)),
+            head,
             (*b"DATA", Cow::from(data)),
             (*b"END ", Cow::Borrowed(&[])),
         ],
@@ -339,7 +340,7 @@ pub fn is_packed_rgl(bytes: &[u8]) -> bool {
 /// Only the header of a packed file (for `inspect`).
 pub fn read_header(bytes: &[u8], path: &Path) -> Result<PackedHeader> {
     let secs = native::sections(bytes, path)?;
-    parse_header(secs[0].1, path)
+    parse_header(&native::header_json(&secs, path)?, path)
 }
 
 fn parse_header(head: &[u8], path: &Path) -> Result<PackedHeader> {
@@ -368,12 +369,12 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
         return Err(Error::invalid_file(
             path,
             format!(
-                "{} sections, expected HEAD, DATA, END for a {FORMAT} file",
+                "{} sections, expected HEAD (or HEAZ), DATA, END for a {FORMAT} file",
                 secs.len()
             ),
         ));
     }
-    let h = parse_header(secs[0].1, path)?;
+    let h = parse_header(&native::header_json(&secs, path)?, path)?;
     let bad = |m: String| Error::invalid_file(path, m);
     let what = path.display().to_string();
     let data = secs[1].1;
