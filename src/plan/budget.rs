@@ -27,6 +27,23 @@ impl Budget {
         self.bounds.iter().any(|(k, _)| k.contains("rel"))
     }
 
+    /// The share of the core's pairs whose relative error no bound weighs: 1 − 0.99 when the
+    /// only relative bound is `p99_rel_core` (a percentile: 1% of the core may err by any
+    /// amount), else 0 (`rel_rmse`, `rel_rmse_core` and `max_rel` weigh every pair).
+    pub fn relative_allowance(&self) -> f64 {
+        let relative: Vec<&str> = self
+            .bounds
+            .iter()
+            .map(|(k, _)| k.as_str())
+            .filter(|k| k.contains("rel"))
+            .collect();
+        if relative == ["p99_rel_core"] {
+            0.01
+        } else {
+            0.0
+        }
+    }
+
     /// Parses `log_rmse=0.01[,p99_rel_core=0.2,...]`, or a named budget: `preview`
     /// (log_rmse ≤ 0.01, p99_rel_core ≤ 0.2) or `production` (log_rmse ≤ 0.002,
     /// p99_rel_core ≤ 0.05, the default of `pack`).

@@ -75,6 +75,8 @@ pub struct ErrorEstimator {
     /// ε of the relative metrics on a set of `for_samples` pairs with fewer bright pairs than
     /// usual (see the module doc).
     epsilon_low: f64,
+    /// The source is itself samples ([`ReferenceSet`]'s `sampled`).
+    sampled: bool,
     for_samples: usize,
     z: f64,
 }
@@ -91,6 +93,9 @@ pub struct ReferenceSet {
     len: usize,
     pub values: Vec<f64>,
     pub channels: usize,
+    /// Whether the source is itself samples (a measured file, a table: `Brdf::is_sampled`),
+    /// whose dark tails carry the roughness of a measurement or a fit ([`curve_floor`]).
+    sampled: bool,
     /// [`ReferenceSet::epsilon_low`] of the first set size asked for: it depends on the
     /// values alone, and each grid a planner tries asks again (400 resamples of 131,072
     /// pairs, ~0.25 s).
@@ -319,6 +324,75 @@ fn curve_scale(
     }
 }
 
+/// The curve's floor as a fraction of the core's values at the budget's allowance quantile
+/// ([`curve_floor`]): a core value f at that quantile then errs by at most 1 + this times its
+/// share of the curve's step ((f + floor)/f ≤ 1.5), so the pairs a percentile bound weighs
+/// keep nearly all their precision while the values far below them stop costing bits.
+const FLOOR_FRACTION: f64 = 0.5;
+
+/// Core pairs below which no floor is drawn: its 1% quantile would rest on fewer than 80
+/// pairs.
+const FLOOR_MIN_CORE_PAIRS: usize = 8000;
+
+/// Per channel, the least ε the curve ln(ε + f) needs under `budget` (`cosines`: cos θi and
+/// cos θo of each pair, `values` pair-major with `c` channels).
+///
+/// When the only relative bound is a core percentile (`p99_rel_core`), no bound weighs the
+/// relative error of a core value below the percentile's allowance (the darkest 1% of the
+/// core) nor that of any value outside the core, which the log error weighs only absolutely.
+/// A curve whose ε is the metric's (1e-3 · mean |f|, far below the darkest value a render
+/// shows on a fabric or a paint) spends its bits on the relative detail of exactly those
+/// values: the grazing tail of a red fabric's blue channel, 1000 times darker than its core,
+/// made its production file five times larger.
+///
+/// Only for a source that is itself samples (a measured file or a table, `sampled`): its
+/// dark values carry the roughness of the measurement or of a fit, which the floor stops
+/// paying for. A model's tail is as smooth as its formula and costs few bits at any ε, while
+/// the floor's amplification of the core's darkest errors remains: on the zoo's models it
+/// made production files up to 1.7 times larger (plastics, gold bodies); on the NBRDF fits
+/// of the 100 MERL materials it made 17 production files under 0.7 times, and the larger
+/// ones are at most 1.34 times (docs/compression.md).
+///
+/// The floor is [`FLOOR_FRACTION`] × the core's value at the allowance quantile, taken as
+/// one ratio to each channel's core median (the smallest over the channels): channels in
+/// proportion (a tinted material) keep curves in proportion, ln(ε_k + f_k) = ln(ε_j + f_j) +
+/// const, so the colour transform still gathers them in one component; floors drawn per
+/// channel on their own made brass's file 30% larger. `None` when the budget weighs every
+/// pair's relative error, or the core has too few pairs.
+fn curve_floor(
+    budget: &crate::plan::budget::Budget,
+    sampled: bool,
+    cosines: impl Iterator<Item = (f64, f64)>,
+    values: &[f64],
+    c: usize,
+) -> Option<Vec<f64>> {
+    let allowance = budget.relative_allowance();
+    if !sampled || allowance <= 0.0 || c == 0 {
+        return None;
+    }
+    let mut core: Vec<Vec<f64>> = vec![Vec::new(); c];
+    for ((cos_i, cos_o), v) in cosines.zip(values.chunks_exact(c)) {
+        if in_core_cos(cos_i, cos_o) {
+            for (k, x) in v.iter().enumerate() {
+                core[k].push(if x.is_finite() { x.abs() } else { 0.0 });
+            }
+        }
+    }
+    if core[0].len() < FLOOR_MIN_CORE_PAIRS {
+        return None;
+    }
+    let ratio = core
+        .iter_mut()
+        .map(|v| {
+            let low = percentile(v, allowance);
+            let median = percentile(v, 0.5);
+            (median, if median > 0.0 { low / median } else { 0.0 })
+        })
+        .collect::<Vec<_>>();
+    let r = ratio.iter().map(|&(_, r)| r).fold(f64::INFINITY, f64::min);
+    Some(ratio.iter().map(|&(m, _)| FLOOR_FRACTION * r * m).collect())
+}
+
 impl ReferenceSet {
     /// The estimation set: `n` pairs uniform in solid angle, stratified ([`stratified_pairs`]
     /// of [`ESTIMATE_SEED`]).
@@ -341,6 +415,7 @@ impl ReferenceSet {
             len: set.pairs.len(),
             values,
             channels: source.channels().len(),
+            sampled: source.is_sampled(),
             epsilon_low: std::sync::OnceLock::new(),
         }
     }
@@ -396,6 +471,18 @@ impl ReferenceSet {
         curve_scale(budget, self.epsilon(), || {
             self.epsilon_low(for_samples.max(1))
         })
+    }
+
+    /// [`ErrorEstimator::curve_floor`] of an estimator of this set, before it is built.
+    pub fn curve_floor(&self, budget: &crate::plan::budget::Budget) -> Option<Vec<f64>> {
+        let set = self.set();
+        curve_floor(
+            budget,
+            self.sampled,
+            set.pairs.iter().map(|(wi, wo)| (wi.z, wo.z)),
+            &self.values,
+            self.channels,
+        )
     }
 
     /// ε of the relative metrics on this set: 1e-3 · mean |f| (`spec/metrics.md`).
@@ -534,6 +621,7 @@ impl ErrorEstimator {
             channels: c,
             epsilon: reference.epsilon(),
             epsilon_low,
+            sampled: reference.sampled,
             for_samples: for_samples.max(1),
             z: CONFIDENCE_Z,
         })
@@ -563,6 +651,23 @@ impl ErrorEstimator {
     /// [`ReferenceSet::curve_scale`] of this estimator's sets.
     pub fn curve_scale(&self, budget: &crate::plan::budget::Budget) -> f64 {
         curve_scale(budget, self.epsilon, || self.epsilon_low)
+    }
+
+    /// Per channel, the least ε of the rate control's curves under `budget` (the curve's ε is
+    /// the larger of this and its scale × [`ErrorEstimator::epsilon`]): see [`curve_floor`].
+    /// The same values as [`ReferenceSet::curve_floor`] of this estimator's set.
+    pub fn curve_floor(&self, budget: &crate::plan::budget::Budget) -> Option<Vec<f64>> {
+        curve_floor(
+            budget,
+            self.sampled,
+            self.pairs
+                .cos_i
+                .iter()
+                .copied()
+                .zip(self.pairs.cos_o.iter().copied()),
+            &self.reference,
+            self.channels,
+        )
     }
 
     /// cos θi and cos θo of the pairs and the reference values (pair-major), in the
@@ -1059,6 +1164,76 @@ mod tests {
         assert_eq!(peak_log, 1.0);
         let (body, _) = scale("lambert:albedo=0.5+ggx:alpha=0.3,fresnel=au");
         assert!(body > 0.8 && body <= 1.0, "body: {body}");
+    }
+
+    /// The curve's floor: under a core-percentile budget a table of a Lambertian surface has
+    /// FLOOR_FRACTION × its (constant) value, channels in proportion keep floors in
+    /// proportion (one ratio to the core median), and a budget that weighs every pair's
+    /// relative error, or none, has no floor; nor has a model (its tail is smooth).
+    #[test]
+    fn the_curve_floor_follows_the_core_quantile_in_proportion() {
+        use crate::plan::budget::Budget;
+        let preview = Budget::parse("preview").unwrap();
+        let g = parse_grid_spec("halfdiff3:8x8x12").unwrap();
+        let table_of = |spec: &str| {
+            let m = Model::parse(spec).unwrap();
+            let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
+            (m, t)
+        };
+        let sampled = |t: &crate::table::Table| crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: crate::table::Interp::Linear,
+        };
+        let (grey, grey_t) = table_of("lambert:albedo=0.5");
+        assert_eq!(
+            ReferenceSet::new(&grey, 1 << 15).curve_floor(&preview),
+            None
+        );
+        let r = ReferenceSet::new(&sampled(&grey_t), 1 << 15);
+        let f = r.curve_floor(&preview).unwrap();
+        for (k, fl) in f.iter().enumerate() {
+            let want = FLOOR_FRACTION * 0.5 / std::f64::consts::PI;
+            assert!(
+                (fl / want - 1.0).abs() < 1e-6,
+                "channel {k}: {fl} vs {want}"
+            );
+        }
+        // A tinted body under a lobe: its channels are in proportion only roughly; the floor
+        // keeps one ratio to each channel's core median, so the channels' floors are in the
+        // proportion of their medians, none above half its own 1% quantile.
+        let (_, tinted_t) = table_of("lambert:albedo=0.6/0.3/0.1+ggx:alpha=0.3,fresnel=au");
+        let tinted = sampled(&tinted_t);
+        let r = ReferenceSet::new(&tinted, 1 << 15);
+        let f = r.curve_floor(&preview).unwrap();
+        let set = r.set();
+        let mut median = Vec::new();
+        for k in 0..3 {
+            let mut core: Vec<f64> = set
+                .pairs
+                .iter()
+                .zip(r.values.chunks_exact(3))
+                .filter(|((wi, wo), _)| in_core_cos(wi.z, wo.z))
+                .map(|(_, v)| v[k])
+                .collect();
+            let low = percentile(&mut core.clone(), 0.01);
+            median.push(percentile(&mut core, 0.5));
+            assert!(
+                f[k] <= FLOOR_FRACTION * low * (1.0 + 1e-12),
+                "{k}: {} > {low}",
+                f[k]
+            );
+        }
+        assert!((f[0] / f[2] - median[0] / median[2]).abs() < 1e-9 * f[0] / f[2]);
+        for spec in [
+            "log_rmse=0.01",
+            "p99_rel_core=0.2,rel_rmse_core=0.5",
+            "max_rel=1",
+        ] {
+            assert_eq!(r.curve_floor(&Budget::parse(spec).unwrap()), None, "{spec}");
+        }
+        // The estimator built from the set draws the same floor.
+        let est = ErrorEstimator::new(&tinted_t, &r, None, 1 << 15).unwrap();
+        assert_eq!(est.curve_floor(&preview), Some(f));
     }
 
     /// Every draw gives pair k again as its set holds it, bit for bit.

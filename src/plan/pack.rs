@@ -292,6 +292,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         None => prepare_coefficients(
             &table,
             reference.epsilon(),
+            reference.curve_floor(&settings.budget),
             reference.curve_scale(&settings.budget, for_samples),
             settings.effort,
             progress,
@@ -598,6 +599,7 @@ fn plan_table(
         (Cow::Owned(t), Some(_)) => prepare_coefficients(
             t,
             reference.epsilon(),
+            reference.curve_floor(&settings.budget),
             reference.curve_scale(&settings.budget, check.len().max(1)),
             settings.effort,
             progress,
