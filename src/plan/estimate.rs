@@ -642,7 +642,7 @@ impl ErrorEstimator {
         self.epsilon
     }
 
-    /// The ε of a second curve ln(ε + f) the rate control tries, relative to the estimation
+    /// The ε of the budget's own curve ln(ε + f) the rate control uses, relative to the estimation
     /// set's: when `budget` bounds a relative metric, the low ε its upper values are measured
     /// against (a step δ of that curve is then a relative error of at most δ for every value,
     /// down to the darkest the bound weighs); else 1. A bright peak over dark values has ε far
