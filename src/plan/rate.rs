@@ -43,7 +43,8 @@ use std::time::Instant;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Effort {
-    /// One codec variant, at most 3 decodes.
+    /// One codec variant (the curve the default effort uses), at most 3 decodes, no refined
+    /// fill.
     Fast,
     /// One codec variant (the metric-matched ε, or the budget's own curve for a bright peak
     /// over dark values; dead zone 0.75), at most 5 decodes.
@@ -82,8 +83,8 @@ impl Effort {
     ///
     /// `curve_scale` is the budget's own curve ([`ErrorEstimator::curve_scale`]): when it is
     /// below [`SECOND_CURVE_BELOW`] of the metric's ε (on tables up to the f32 planes'
-    /// threshold), the default effort runs that curve instead of the metric's, and `max`
-    /// runs both and keeps the smaller file. Both at the default effort cost a second
+    /// threshold), the fast and default efforts run that curve instead of the metric's, and
+    /// `max` runs both and keeps the smaller file. Both at the default effort cost a second
     /// transform and rate control beside the estimator's stencils: 3.0 s and 137 MB on a
     /// bright peak's MERL-grid table, over issue #19's 2 s and 128 MB; the budget's curve
     /// alone made files 0–17% larger where the metric's had won (13 NBRDF fits of MERL
@@ -99,8 +100,7 @@ impl Effort {
         }
         if cells <= F32_PLANE_CELLS && curve_scale > 0.0 && curve_scale < SECOND_CURVE_BELOW {
             match self {
-                Effort::Fast => {}
-                Effort::Default => all[0].eps_scale = curve_scale,
+                Effort::Fast | Effort::Default => all[0].eps_scale = curve_scale,
                 Effort::Max => all.push(Variant {
                     eps_scale: curve_scale,
                     deadzone: DEFAULT_DEADZONE,
