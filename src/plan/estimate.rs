@@ -474,12 +474,13 @@ impl ReferenceSet {
     }
 
     /// [`ErrorEstimator::curve_floor`] of an estimator of this set, before it is built.
+    /// The pairs are drawn lazily, not collected: a model (or a budget without a
+    /// percentile) draws none.
     pub fn curve_floor(&self, budget: &crate::plan::budget::Budget) -> Option<Vec<f64>> {
-        let set = self.set();
         curve_floor(
             budget,
             self.sampled,
-            set.pairs.iter().map(|(wi, wo)| (wi.z, wo.z)),
+            self.draw.pairs().map(|(wi, wo)| (wi.z, wo.z)),
             &self.values,
             self.channels,
         )
