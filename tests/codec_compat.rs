@@ -141,7 +141,7 @@ fn old_headers_parse_unweighted_and_serialize_byte_for_byte() {
 /// A `dct` file of the context coder's first model (every position coded, written by the main
 /// binary at efcdcd2, before line ends): its header has no `model` and reads as that model, it
 /// decodes to what the old binary decoded, the old model's encoder still writes its very
-/// payload, and today's `dct:step=0.01` (line ends) decodes to the same table.
+/// payload, and today's `dct:step=0.01` (the current model) decodes to the same table.
 #[test]
 fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
     let (p, old) = fixture("ggx-dct-context-v1.bpk");
@@ -175,7 +175,7 @@ fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
     let CodecSpec::DctContext { coding, .. } = &now else {
         panic!("{now:?}")
     };
-    assert_eq!(coding.model, ContextModel::LineEnds);
+    assert_eq!(coding.model, ContextModel::CURRENT);
     let ends = now.encode(&source).unwrap();
     // This box is dense (step 0.01 on 8 × 8 × 16: most lines run to their last position or
     // near it), so the ends save few zero flags and cost about as much as they save: 964 B
@@ -190,6 +190,49 @@ fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
     let back = now.decode(&ends, &Layout::of(&source)).unwrap();
     let first = header.codec.decode(&payload, &Layout::of(&source)).unwrap();
     // Same coefficients (same quantizer), other stream: the same decoded table.
+    assert!(
+        back.iter()
+            .zip(&first)
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
+}
+
+/// A `dct` file of the line-end model (written by the main binary at db7d7bd, before the zero
+/// flags' contexts held the second neighbours): its header names `line_ends`, it decodes to
+/// what that binary decoded, that model's encoder still writes its very payload, and today's
+/// model codes the same coefficients into a stream that decodes to the same table.
+#[test]
+fn a_line_end_model_file_decodes_to_what_the_old_binary_decoded() {
+    let (p, old) = fixture("ggx-dct-context-v2.bpk");
+    let header = native::read_header(&old, &p).unwrap();
+    let CodecSpec::DctContext {
+        transform, coding, ..
+    } = &header.codec
+    else {
+        panic!("{:?}", header.codec)
+    };
+    assert_eq!(coding.model, ContextModel::LineEnds);
+    let eps = match &transform.curve {
+        Curve::Log { eps } | Curve::SignedLog { eps } => eps.clone(),
+        Curve::Linear => vec![0.0; 3],
+    };
+    assert_decodes_near(&old, &p, "ggx-dct-context-v2-decoded.bpk", &eps);
+    let (s, src) = fixture("ggx-lossless.bpk");
+    let source = native::from_bytes(&src, &s).unwrap();
+    let payload = header.codec.encode(&source).unwrap();
+    assert!(
+        old.windows(payload.len()).any(|w| w == payload),
+        "the line-end model's encoder no longer writes the old payload"
+    );
+    let mut now = header.codec.clone();
+    if let CodecSpec::DctContext { coding, .. } = &mut now {
+        coding.model = ContextModel::CURRENT;
+    }
+    assert_ne!(ContextModel::CURRENT, ContextModel::LineEnds);
+    let wide = now.encode(&source).unwrap();
+    assert_ne!(wide, payload);
+    let back = now.decode(&wide, &Layout::of(&source)).unwrap();
+    let first = header.codec.decode(&payload, &Layout::of(&source)).unwrap();
     assert!(
         back.iter()
             .zip(&first)

@@ -491,7 +491,7 @@ fn figures_gold_codes() {
     let payload = spec.encode(&t).unwrap();
     let n = [90usize, 90, 180];
     let cells = (n[0] * n[1] * n[2]) as f64;
-    let comps = coefcode::decode(&payload, &n, 3, coefcode::ContextModel::LineEnds).unwrap();
+    let comps = coefcode::decode(&payload, &n, 3, coefcode::ContextModel::CURRENT).unwrap();
     let orders: Vec<[usize; 3]> = vec![
         [0, 1, 2],
         [0, 2, 1],
@@ -607,17 +607,21 @@ fn figures_gold_codes() {
         );
     }
     let first = coefcode::encode_model(&comps, coefcode::ContextModel::EveryPosition);
+    let ends = coefcode::encode_model(&comps, coefcode::ContextModel::LineEnds);
     println!(
-        "CODES gold production payload {} B with line ends; {} B with every position coded",
+        "CODES gold production payload {} B with line ends and second neighbours; {} B with \
+         line ends; {} B with every position coded",
         payload.len(),
+        ends.len(),
         first.len()
     );
-    // Coefficient decoding alone in both models, alternating (so both see the same load):
-    // median of 21 runs each.
-    let mut times = [Vec::new(), Vec::new()];
+    // Coefficient decoding alone in the three models, alternating (so all see the same
+    // load): median of 21 runs each.
+    let mut times = [Vec::new(), Vec::new(), Vec::new()];
     for _ in 0..21 {
         for (k, (bytes, model)) in [
-            (&payload, coefcode::ContextModel::LineEnds),
+            (&payload, coefcode::ContextModel::LineEndsWide),
+            (&ends, coefcode::ContextModel::LineEnds),
             (&first, coefcode::ContextModel::EveryPosition),
         ]
         .into_iter()
@@ -633,15 +637,16 @@ fn figures_gold_codes() {
         t.sort_by(f64::total_cmp);
     }
     println!(
-        "CODES gold production coefficient decode (median of 21): line ends {:.2} ms, every \
-         position {:.2} ms",
-        times[0][10], times[1][10]
+        "CODES gold production coefficient decode (median of 21): second neighbours {:.2} ms, \
+         line ends {:.2} ms, every position {:.2} ms",
+        times[0][10], times[1][10], times[2][10]
     );
 }
 
-/// The context coder's two models on the coefficients of the budget rows (docs/benchmarks.md
+/// The context coder's three models on the coefficients of the budget rows (docs/benchmarks.md
 /// "Compression budgets", their specs from docs/compression.md): payload bytes of every
-/// position coded (the first model) against line ends (the current one).
+/// position coded (the first model), line ends, and line ends with second neighbours (the
+/// current one).
 /// `BRDFPACK_SHARED=/work/shared cargo test --release --test codec_figures figures_line_ends -- --ignored --nocapture`
 #[test]
 #[ignore]
@@ -691,28 +696,35 @@ fn figures_line_ends() {
         w,
         "dct:eps=0.01,step=3.86,refine=4",
     ));
-    let mut tot = [0usize; 2];
+    let mut tot = [0usize; 3];
     for (name, t, s) in &cases {
         let spec = CodecRequest::parse(s).unwrap().resolve(t).unwrap();
         let payload = spec.encode(t).unwrap();
         let layout = Layout::of(t);
         let dims = layout.grid.shape();
         let c = layout.channels;
-        let comps = coefcode::decode(&payload, &dims, c, ContextModel::LineEnds).unwrap();
+        let comps = coefcode::decode(&payload, &dims, c, ContextModel::CURRENT).unwrap();
         let old = coefcode::encode_model(&comps, ContextModel::EveryPosition).len();
         let a = coefcode::encode_model(&comps, ContextModel::LineEnds).len();
-        assert_eq!(a, payload.len(), "{name}");
+        let w = coefcode::encode_model(&comps, ContextModel::LineEndsWide).len();
+        assert_eq!(w, payload.len(), "{name}");
         tot[0] += old;
         tot[1] += a;
+        tot[2] += w;
         println!(
-            "LINE ENDS {name}: every position {old} B, line ends {a} B ({:+.1}%)",
-            100.0 * (a as f64 / old as f64 - 1.0)
+            "LINE ENDS {name}: every position {old} B, line ends {a} B ({:+.1}%), second \
+             neighbours {w} B ({:+.1}% against line ends)",
+            100.0 * (a as f64 / old as f64 - 1.0),
+            100.0 * (w as f64 / a as f64 - 1.0)
         );
     }
     println!(
-        "LINE ENDS total: every position {} B, line ends {} B ({:+.1}%)",
+        "LINE ENDS total: every position {} B, line ends {} B ({:+.1}%), second neighbours {} B \
+         ({:+.1}% against line ends)",
         tot[0],
         tot[1],
-        100.0 * (tot[1] as f64 / tot[0] as f64 - 1.0)
+        100.0 * (tot[1] as f64 / tot[0] as f64 - 1.0),
+        tot[2],
+        100.0 * (tot[2] as f64 / tot[1] as f64 - 1.0)
     );
 }

@@ -15,8 +15,12 @@
 //! rest), band = ⌊log2(1 + Σ frequency indices)⌋, and the magnitudes of the neighbours one step
 //! back along every axis (coded before it in C order; those past their line's end are 0). The
 //! first model ([`ContextModel::EveryPosition`], files written before line ends) codes every
-//! position of the box this way, without ends; its stream starts with byte 0, the current
-//! one's with 1.
+//! position of the box this way, without ends; its stream starts with byte 0, the line-end
+//! model's with 1. The current model ([`ContextModel::LineEndsWide`], byte 2) is the line-end
+//! model whose zero flags also have the magnitudes of the neighbours two steps back along every
+//! axis in their context (four buckets): a DCT box's magnitudes fall off smoothly along each
+//! axis, and the second neighbours tell a run of zeros from an isolated one (0–8% smaller
+//! files on the budget tables, docs/compression.md "Second neighbours").
 //!
 //! The coder is the LZMA range coder (Pavlov, 7-Zip `LzmaEnc.c`) with 16-bit probabilities,
 //! each context the average of a fast and a slow estimator: integer arithmetic only, so the
@@ -53,9 +57,17 @@ pub enum ContextModel {
     /// Each line along the last axis first codes where it ends; positions after its last
     /// nonzero are not coded (they are zero), the last one's zero flag is implied.
     LineEnds,
+    /// [`ContextModel::LineEnds`] with the zero flag's context widened by the neighbours two
+    /// steps back along every axis (files written since 2026-12-07). Named `line_ends2` in
+    /// headers: every byte counts in a preview file of 700 B.
+    #[serde(rename = "line_ends2")]
+    LineEndsWide,
 }
 
 impl ContextModel {
+    /// The model new files are written in.
+    pub const CURRENT: ContextModel = ContextModel::LineEndsWide;
+
     /// The old model is not written: a spec in it serializes to the very header the old
     /// binary wrote.
     fn is_every_position(&self) -> bool {
@@ -69,7 +81,13 @@ impl ContextModel {
         match self {
             ContextModel::EveryPosition => 0,
             ContextModel::LineEnds => 1,
+            ContextModel::LineEndsWide => 2,
         }
+    }
+
+    /// Whether the zero flags' contexts hold the second neighbours.
+    fn is_wide(self) -> bool {
+        self == ContextModel::LineEndsWide
     }
 }
 
@@ -84,7 +102,7 @@ impl ContextCoding {
     pub fn new(deadzone: f64) -> ContextCoding {
         ContextCoding {
             deadzone,
-            model: ContextModel::LineEnds,
+            model: ContextModel::CURRENT,
         }
     }
 
@@ -301,6 +319,9 @@ impl<'a> RangeDecoder<'a> {
 const COMP_CLASSES: usize = 3;
 const BANDS: usize = 12;
 const NBR_BUCKETS: usize = 9;
+/// Buckets of the second neighbours' magnitude sum ([`ContextModel::LineEndsWide`]; the
+/// other models use bucket 0 only).
+const NB2_BUCKETS: usize = 4;
 const UNARY_POS: usize = 16;
 /// Largest exponent of |q| (dct::quantize clamps |q| to 2^30).
 const MAX_EXP: u32 = 31;
@@ -321,6 +342,17 @@ const fn nbr_bucket(m: u32) -> usize {
     }
 }
 
+/// Second-neighbour magnitude sum → bucket.
+#[inline]
+const fn nb2_bucket(m: u32) -> usize {
+    match m {
+        0 => 0,
+        1 => 1,
+        2..=3 => 2,
+        _ => 3,
+    }
+}
+
 /// All contexts of the model.
 struct Model {
     zero: Vec<Ctx>,
@@ -333,7 +365,7 @@ struct Model {
 impl Model {
     fn new() -> Model {
         Model {
-            zero: vec![Ctx::default(); COMP_CLASSES * BANDS * NBR_BUCKETS],
+            zero: vec![Ctx::default(); COMP_CLASSES * BANDS * NBR_BUCKETS * NB2_BUCKETS],
             sign: vec![Ctx::default(); COMP_CLASSES * 9],
             unary: vec![Ctx::default(); COMP_CLASSES * NBR_BUCKETS * UNARY_POS],
             mantissa: vec![Ctx::default(); COMP_CLASSES * (MAX_EXP as usize + 1)],
@@ -520,28 +552,36 @@ struct BoxWalk {
     extent: Vec<usize>,
     strides: Vec<usize>,
     idx: Vec<usize>,
+    /// Whether the context has the second neighbours ([`ContextModel::LineEndsWide`]).
+    wide: bool,
 }
 
 impl BoxWalk {
-    fn new(extent: &[usize]) -> BoxWalk {
+    fn new(extent: &[usize], model: ContextModel) -> BoxWalk {
         BoxWalk {
             extent: extent.to_vec(),
             strides: dct::c_strides(extent),
             idx: vec![0; extent.len()],
+            wide: model.is_wide(),
         }
     }
 
     /// Context inputs of the coefficient at the current index (flat `b`) from the codes
-    /// already known (`codes[..b]`).
+    /// already known (`codes[..b]`): band, neighbour bucket, second-neighbour bucket (0 unless
+    /// wide), signs.
     #[inline]
-    fn context(&self, codes: &[i32], b: usize) -> (usize, usize, usize) {
+    fn context(&self, codes: &[i32], b: usize) -> (usize, usize, usize, usize) {
         let d = self.idx.len();
         let mut sum_idx = 0usize;
         let mut m = 0u32;
+        let mut m2 = 0u32;
         for a in 0..d {
             sum_idx += self.idx[a];
             if self.idx[a] > 0 {
                 m = m.saturating_add(codes[b - self.strides[a]].unsigned_abs());
+            }
+            if self.wide && self.idx[a] > 1 {
+                m2 = m2.saturating_add(codes[b - 2 * self.strides[a]].unsigned_abs());
             }
         }
         let band = ((usize::BITS - (sum_idx + 1).leading_zeros() - 1) as usize).min(BANDS - 1);
@@ -553,7 +593,7 @@ impl BoxWalk {
             }
         };
         let signs = if d > 0 { sgn(d - 1) * 3 + sgn(0) } else { 4 };
-        (band, nbr_bucket(m), signs)
+        (band, nbr_bucket(m), nb2_bucket(m2), signs)
     }
 
     #[inline]
@@ -564,13 +604,14 @@ impl BoxWalk {
 
 /// The zero-flag contexts of component class `cc` (every band and neighbour bucket).
 fn zero_class(cc: usize) -> std::ops::Range<usize> {
-    zero_index(cc, 0, 0)..zero_index(cc + 1, 0, 0)
+    zero_index(cc, 0, 0, 0)..zero_index(cc + 1, 0, 0, 0)
 }
 
-/// The zero-flag context index of component class `cc`, band and neighbour bucket.
+/// The zero-flag context index of component class `cc`, band, neighbour bucket and
+/// second-neighbour bucket.
 #[inline]
-fn zero_index(cc: usize, band: usize, nb: usize) -> usize {
-    (cc * BANDS + band) * NBR_BUCKETS + nb
+fn zero_index(cc: usize, band: usize, nb: usize, nb2: usize) -> usize {
+    ((cc * BANDS + band) * NBR_BUCKETS + nb) * NB2_BUCKETS + nb2
 }
 
 /// The sign and magnitude of a nonzero `q` (`decode_nonzero` reads them).
@@ -645,10 +686,10 @@ fn decode_golomb(
 /// The first model: every position of the box.
 fn encode_component(rc: &mut RangeEncoder, model: &mut Model, comp: usize, c: &Coefficients) {
     let cc = comp.min(COMP_CLASSES - 1);
-    let mut walk = BoxWalk::new(&c.extent);
+    let mut walk = BoxWalk::new(&c.extent, ContextModel::EveryPosition);
     for (b, &q) in c.codes.iter().enumerate() {
-        let (band, nb, signs) = walk.context(&c.codes, b);
-        rc.encode(&mut model.zero[zero_index(cc, band, nb)], q != 0);
+        let (band, nb, nb2, signs) = walk.context(&c.codes, b);
+        rc.encode(&mut model.zero[zero_index(cc, band, nb, nb2)], q != 0);
         if q != 0 {
             encode_nonzero(rc, model, cc, nb, signs, q);
         }
@@ -679,15 +720,21 @@ impl LineGrid {
     }
 }
 
-/// The line-end model: per line (C order) its end, then the positions up to it.
-fn encode_component_lines(rc: &mut RangeEncoder, model: &mut Model, comp: usize, c: &Coefficients) {
+/// The line-end models: per line (C order) its end, then the positions up to it.
+fn encode_component_lines(
+    rc: &mut RangeEncoder,
+    model: &mut Model,
+    comp: usize,
+    c: &Coefficients,
+    layout: ContextModel,
+) {
     let cc = comp.min(COMP_CLASSES - 1);
     let grid = LineGrid::new(&c.extent, c.codes.len());
     let n = grid.n;
     let d = c.extent.len();
     let mut outer = vec![0usize; grid.outer_extent.len()];
     let mut ends = vec![0u32; grid.count];
-    let mut walk = BoxWalk::new(&c.extent);
+    let mut walk = BoxWalk::new(&c.extent, layout);
     for r in 0..grid.count {
         let end = c.codes[r * n..(r + 1) * n]
             .iter()
@@ -703,10 +750,10 @@ fn encode_component_lines(rc: &mut RangeEncoder, model: &mut Model, comp: usize,
             }
             let b = r * n + i;
             let q = c.codes[b];
-            let (band, nb, signs) = walk.context(&c.codes, b);
+            let (band, nb, nb2, signs) = walk.context(&c.codes, b);
             // The last position's flag is implied: it ends the line, so it is nonzero.
             if i + 1 < end {
-                rc.encode(&mut model.zero[zero_index(cc, band, nb)], q != 0);
+                rc.encode(&mut model.zero[zero_index(cc, band, nb, nb2)], q != 0);
             }
             if q != 0 {
                 encode_nonzero(rc, model, cc, nb, signs, q);
@@ -734,16 +781,17 @@ fn decode_component(
     if extent.len() == 3 && total > 0 {
         let e = [extent[0], extent[1], extent[2]];
         match layout {
-            ContextModel::LineEnds => decode_lines_3d(rc, model, cc, e, &mut codes)?,
+            ContextModel::LineEnds => decode_lines_3d::<false>(rc, model, cc, e, &mut codes)?,
+            ContextModel::LineEndsWide => decode_lines_3d::<true>(rc, model, cc, e, &mut codes)?,
             ContextModel::EveryPosition => decode_box_3d(rc, model, cc, e, &mut codes)?,
         }
         return Ok(Coefficients { extent, codes });
     }
-    let mut walk = BoxWalk::new(&extent);
+    let mut walk = BoxWalk::new(&extent, layout);
     if layout == ContextModel::EveryPosition {
         for b in 0..total {
-            let (band, nb, signs) = walk.context(&codes, b);
-            if rc.decode(&mut model.zero[zero_index(cc, band, nb)]) {
+            let (band, nb, nb2, signs) = walk.context(&codes, b);
+            if rc.decode(&mut model.zero[zero_index(cc, band, nb, nb2)]) {
                 codes[b] = decode_nonzero(rc, model, cc, nb, signs)?;
             }
             walk.advance();
@@ -765,8 +813,8 @@ fn decode_component(
                 walk.idx[d - 1] = i;
             }
             let b = r * n + i;
-            let (band, nb, signs) = walk.context(&codes, b);
-            if i + 1 == end || rc.decode(&mut model.zero[zero_index(cc, band, nb)]) {
+            let (band, nb, nb2, signs) = walk.context(&codes, b);
+            if i + 1 == end || rc.decode(&mut model.zero[zero_index(cc, band, nb, nb2)]) {
                 codes[b] = decode_nonzero(rc, model, cc, nb, signs)?;
             }
         }
@@ -808,7 +856,7 @@ const NBR_LUT: [u8; 257] = {
 fn band_offsets(n: usize) -> Vec<usize> {
     (0..n)
         .map(|sum| ((usize::BITS - (sum + 1).leading_zeros() - 1) as usize).min(BANDS - 1))
-        .map(|band| band * NBR_BUCKETS)
+        .map(|band| band * NBR_BUCKETS * NB2_BUCKETS)
         .collect()
 }
 
@@ -861,7 +909,7 @@ fn decode_box_3d(
                 } else {
                     8
                 };
-                if rc.decode(&mut zero_ctx[offsets[i2] + nb]) {
+                if rc.decode(&mut zero_ctx[offsets[i2] + nb * NB2_BUCKETS]) {
                     let signs = (left.signum() + 1) as usize * 3 + (back[i2].signum() + 1) as usize;
                     cur[i2] = decode_nonzero(rc, model, cc, nb, signs)?;
                 }
@@ -873,9 +921,10 @@ fn decode_box_3d(
     Ok(())
 }
 
-/// The line-end model's 3-D box: the incremental contexts of [`decode_box_3d`], visiting only
-/// the positions up to each line's end (the rest of the box stays zero).
-fn decode_lines_3d(
+/// The line-end models' 3-D box: the incremental contexts of [`decode_box_3d`], visiting only
+/// the positions up to each line's end (the rest of the box stays zero); `WIDE`: with the
+/// second neighbours ([`ContextModel::LineEndsWide`]).
+fn decode_lines_3d<const WIDE: bool>(
     rc: &mut RangeDecoder,
     model: &mut Model,
     cc: usize,
@@ -915,8 +964,19 @@ fn decode_lines_3d(
             } else {
                 &zeros[..end]
             };
+            // The second neighbours (read only when WIDE).
+            let up2 = if WIDE && i1 > 1 {
+                &before[row - 2 * e2..row - 2 * e2 + end]
+            } else {
+                &zeros[..end]
+            };
+            let back2 = if WIDE && i0 > 1 {
+                &before[row - 2 * s0..row - 2 * s0 + end]
+            } else {
+                &zeros[..end]
+            };
             let offsets = &band_offset[i0 + i1..i0 + i1 + end];
-            let mut left = 0i32;
+            let (mut left, mut left2) = (0i32, 0i32);
             for i2 in 0..end {
                 // As in `decode_box_3d`: no overflow in u64, sums from 257 up are bucket 8.
                 let m = left.unsigned_abs() as u64
@@ -927,11 +987,21 @@ fn decode_lines_3d(
                 } else {
                     8
                 };
+                let at = if WIDE {
+                    // Below 2^33: no overflow; every sum from 4 up is bucket 3.
+                    let m2 = left2.unsigned_abs() as u64
+                        + up2[i2].unsigned_abs() as u64
+                        + back2[i2].unsigned_abs() as u64;
+                    offsets[i2] + nb * NB2_BUCKETS + nb2_bucket(m2.min(4) as u32)
+                } else {
+                    offsets[i2] + nb * NB2_BUCKETS
+                };
                 // The line's last position is nonzero without a flag.
-                if i2 + 1 == end || rc.decode(&mut zero_ctx[offsets[i2] + nb]) {
+                if i2 + 1 == end || rc.decode(&mut zero_ctx[at]) {
                     let signs = (left.signum() + 1) as usize * 3 + (back[i2].signum() + 1) as usize;
                     cur[i2] = decode_nonzero(rc, model, cc, nb, signs)?;
                 }
+                left2 = left;
                 left = cur[i2];
             }
         }
@@ -940,9 +1010,22 @@ fn decode_lines_3d(
     Ok(())
 }
 
-/// The payload in the current model ([`ContextModel::LineEnds`]).
+/// The payload in the current model ([`ContextModel::CURRENT`]).
 pub fn encode(comps: &[Coefficients]) -> Vec<u8> {
-    encode_model(comps, ContextModel::LineEnds)
+    encode_model(comps, ContextModel::CURRENT)
+}
+
+/// The smaller payload of the two line-end models and its model (the current one on a tie).
+/// The second neighbours' contexts are four times as many: on a sparse box (a small file)
+/// learning them can cost more than they save (up to 1% on the preview budget's files).
+pub fn encode_smaller(comps: &[Coefficients]) -> (ContextModel, Vec<u8>) {
+    let wide = encode_model(comps, ContextModel::LineEndsWide);
+    let plain = encode_model(comps, ContextModel::LineEnds);
+    if plain.len() < wide.len() {
+        (ContextModel::LineEnds, plain)
+    } else {
+        (ContextModel::LineEndsWide, wide)
+    }
 }
 
 /// The payload: every component's box extents (varints), then one range-coded stream of every
@@ -959,7 +1042,9 @@ pub fn encode_model(comps: &[Coefficients], model: ContextModel) -> Vec<u8> {
     for (k, c) in comps.iter().enumerate() {
         match model {
             ContextModel::EveryPosition => encode_component(&mut rc, &mut m, k, c),
-            ContextModel::LineEnds => encode_component_lines(&mut rc, &mut m, k, c),
+            ContextModel::LineEnds | ContextModel::LineEndsWide => {
+                encode_component_lines(&mut rc, &mut m, k, c, model)
+            }
         }
     }
     let mut stream = rc.finish();
@@ -1119,7 +1204,7 @@ mod tests {
         let bytes = encode(std::slice::from_ref(&c));
         assert!(bytes.len() <= 20, "{} bytes", bytes.len());
         assert_eq!(
-            decode(&bytes, &dims, 1, ContextModel::LineEnds).unwrap(),
+            decode(&bytes, &dims, 1, ContextModel::CURRENT).unwrap(),
             vec![c]
         );
     }
@@ -1169,10 +1254,22 @@ mod tests {
             decode(&old, &[4, 4], 1, ContextModel::EveryPosition).unwrap(),
             vec![c.clone()]
         );
-        // Each model refuses the other's stream by its first byte.
-        assert!(decode(&old, &[4, 4], 1, ContextModel::LineEnds).is_err());
-        let new = encode(std::slice::from_ref(&c));
-        assert!(decode(&new, &[4, 4], 1, ContextModel::EveryPosition).is_err());
+        // Each model refuses the others' streams by their first byte.
+        let models = [
+            ContextModel::EveryPosition,
+            ContextModel::LineEnds,
+            ContextModel::LineEndsWide,
+        ];
+        for written in models {
+            let bytes = encode_model(std::slice::from_ref(&c), written);
+            for read in models {
+                assert_eq!(
+                    decode(&bytes, &[4, 4], 1, read).is_ok(),
+                    read == written,
+                    "{written:?} read as {read:?}"
+                );
+            }
+        }
         let json = r#"{"deadzone":0.75}"#;
         let coding: ContextCoding = serde_json::from_str(json).unwrap();
         assert_eq!(coding.model, ContextModel::EveryPosition);
@@ -1180,8 +1277,12 @@ mod tests {
         let coding = ContextCoding::new(0.75);
         assert_eq!(
             serde_json::to_string(&coding).unwrap(),
-            r#"{"deadzone":0.75,"model":"line_ends"}"#
+            r#"{"deadzone":0.75,"model":"line_ends2"}"#
         );
+        // The line-end model's headers still read.
+        let coding: ContextCoding =
+            serde_json::from_str(r#"{"deadzone":0.75,"model":"line_ends"}"#).unwrap();
+        assert_eq!(coding.model, ContextModel::LineEnds);
     }
 
     #[test]
@@ -1199,7 +1300,11 @@ mod tests {
                     varied_lines(&extent, seed + 100),
                     varied_lines(&extent, seed + 200),
                 ];
-                for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+                for model in [
+                    ContextModel::EveryPosition,
+                    ContextModel::LineEnds,
+                    ContextModel::LineEndsWide,
+                ] {
                     let bytes = encode_model(&cs, model);
                     let back = decode(&bytes, &extent, 3, model).unwrap();
                     assert_eq!(back, cs, "{extent:?} seed {seed} {model:?}");
@@ -1244,7 +1349,11 @@ mod tests {
 
     #[test]
     fn hostile_streams_are_errors() {
-        for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+        for model in [
+            ContextModel::EveryPosition,
+            ContextModel::LineEnds,
+            ContextModel::LineEndsWide,
+        ] {
             let pre = model.preamble();
             for dims in [vec![4usize, 4], vec![4, 4, 4]] {
                 let d = dims.len();
@@ -1291,7 +1400,11 @@ mod tests {
                 if rng.next_f64() < sparsity { 0 } else { (rng.next_f64() * 200.0 - 100.0) as i32 }
             }).collect();
             let cs = vec![Coefficients { extent: shape.clone(), codes }];
-            for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+            for model in [
+                    ContextModel::EveryPosition,
+                    ContextModel::LineEnds,
+                    ContextModel::LineEndsWide,
+                ] {
                 let back = decode(&encode_model(&cs, model), &shape, 1, model).unwrap();
                 prop_assert_eq!(&back, &cs);
             }
@@ -1326,9 +1439,11 @@ mod tests {
                 }
                 Coefficients { extent, codes }
             }).collect();
-            let bytes = encode(&cs);
-            let back = decode(&bytes, &dims, comps, ContextModel::LineEnds).unwrap();
-            prop_assert_eq!(back, cs);
+            for model in [ContextModel::LineEnds, ContextModel::LineEndsWide] {
+                let bytes = encode_model(&cs, model);
+                let back = decode(&bytes, &dims, comps, model).unwrap();
+                prop_assert_eq!(&back, &cs);
+            }
         }
 
         #[test]
@@ -1349,7 +1464,11 @@ mod tests {
                 }).collect();
                 Coefficients { extent, codes }
             }).collect();
-            for model in [ContextModel::EveryPosition, ContextModel::LineEnds] {
+            for model in [
+                    ContextModel::EveryPosition,
+                    ContextModel::LineEnds,
+                    ContextModel::LineEndsWide,
+                ] {
                 let bytes = encode_model(&cs, model);
                 let back = decode(&bytes, &dims, comps, model).unwrap();
                 prop_assert_eq!(&back, &cs);

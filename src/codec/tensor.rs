@@ -161,7 +161,9 @@ impl TensorCoding {
                     dct::check_range(&coef, *step)?;
                     quantized.push(coefcode::quantize_deadzone(&coef, dims, *step, *deadzone));
                 }
-                Ok(coefcode::encode(&quantized))
+                // The packed RGL form's coefficients stay in the line-end model its
+                // readers decode (`decode` below).
+                Ok(coefcode::encode_model(&quantized, ContextModel::LineEnds))
             }
         }
     }

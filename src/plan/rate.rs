@@ -925,13 +925,20 @@ impl Control<'_> {
             })
             .collect();
         (self.progress)(&format!("refining the fill at step {s:.4e}"));
-        let payload = coefcode::encode(&codes);
+        let (model, payload) = coefcode::encode_smaller(&codes);
         let mut spec = spec.clone();
-        if let CodecSpec::DctContext { domain, dct, .. } = &mut spec {
+        if let CodecSpec::DctContext {
+            domain,
+            dct,
+            coding,
+            ..
+        } = &mut spec
+        {
             *domain = Domain::FillRefined {
                 iterations: v.refine_once,
             };
             dct.step.iter_mut().for_each(|x| *x = s);
+            coding.model = model;
         }
         (spec, payload)
     }
@@ -959,7 +966,7 @@ impl Control<'_> {
         let dims = self.table.grid().shape();
         let v = self.variant;
         (self.progress)(&format!("trying step {s:.4e} ({})", v.describe()));
-        let spec = CodecSpec::DctContext {
+        let mut spec = CodecSpec::DctContext {
             domain: if v.refine > 0 {
                 Domain::FillRefined {
                     iterations: v.refine,
@@ -972,7 +979,7 @@ impl Control<'_> {
             coding: ContextCoding::new(v.deadzone),
             residual: None,
         };
-        let payload = if v.refine > 0 {
+        let (model, payload) = if v.refine > 0 {
             let coding = ContextCoding::new(v.deadzone);
             let coefs = dct_coefficients_for(
                 self.table,
@@ -983,20 +990,23 @@ impl Control<'_> {
                 &vec![s; c],
                 &coding,
             )?;
-            coefcode::encode(&coefcode::quantize_all(
+            coefcode::encode_smaller(&coefcode::quantize_all(
                 &coefs,
                 &dims,
                 &vec![s; c],
                 v.deadzone,
             ))
         } else {
-            coefcode::encode(&coefcode::quantize_all(
+            coefcode::encode_smaller(&coefcode::quantize_all(
                 self.coefs,
                 &dims,
                 &vec![s; c],
                 v.deadzone,
             ))
         };
+        if let CodecSpec::DctContext { coding, .. } = &mut spec {
+            coding.model = model;
+        }
         let e = self.measure_payload(&spec, &payload, s)?;
         Ok((spec, payload, e))
     }
