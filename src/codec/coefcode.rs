@@ -85,6 +85,14 @@ impl ContextModel {
         }
     }
 
+    /// The contexts' adaptation shifts (fast, slow).
+    fn rates(self) -> (u32, u32) {
+        match self {
+            ContextModel::EveryPosition | ContextModel::LineEnds => (FAST, SLOW),
+            ContextModel::LineEndsWide => (FAST_WIDE, SLOW_WIDE),
+        }
+    }
+
     /// Whether the zero flags' contexts hold the second neighbours.
     fn is_wide(self) -> bool {
         self == ContextModel::LineEndsWide
@@ -118,11 +126,17 @@ impl ContextCoding {
     }
 }
 
-/// Probability precision (bits) and the two adaptation rates.
+/// Probability precision (bits) and the two adaptation rates (shifts) of the first two
+/// models.
 const PROB_BITS: u32 = 16;
 const PROB_ONE: u32 = 1 << PROB_BITS;
 const FAST: u32 = 4;
 const SLOW: u32 = 7;
+/// The adaptation rates of [`ContextModel::LineEndsWide`]: faster. A box's statistics change
+/// along the scan (low-frequency lines first), and its many contexts must be learned from
+/// few symbols; measured (docs/compression.md, "Second neighbours").
+const FAST_WIDE: u32 = 3;
+const SLOW_WIDE: u32 = 5;
 /// Renormalize when the range drops below 2^24 (one byte of headroom, as LZMA).
 const TOP: u32 = 1 << 24;
 
@@ -149,15 +163,17 @@ impl Ctx {
     fn p0(&self) -> u32 {
         (self.fast as u32 + self.slow as u32) >> 1
     }
+    /// Moves both estimates towards `bit`, by 2^-fast and 2^-slow of the way (shifts of at
+    /// least 2: an estimate never reaches 0 or 2^16).
     #[inline]
-    fn update(&mut self, bit: bool) {
+    fn update(&mut self, bit: bool, (fast, slow): (u32, u32)) {
         let (f, s) = (self.fast as u32, self.slow as u32);
         if bit {
-            self.fast = (f - (f >> FAST)) as u16;
-            self.slow = (s - (s >> SLOW)) as u16;
+            self.fast = (f - (f >> fast)) as u16;
+            self.slow = (s - (s >> slow)) as u16;
         } else {
-            self.fast = (f + ((PROB_ONE - f) >> FAST)) as u16;
-            self.slow = (s + ((PROB_ONE - s) >> SLOW)) as u16;
+            self.fast = (f + ((PROB_ONE - f) >> fast)) as u16;
+            self.slow = (s + ((PROB_ONE - s) >> slow)) as u16;
         }
     }
 }
@@ -169,6 +185,8 @@ pub struct RangeEncoder {
     cache: u8,
     cache_size: u64,
     out: Vec<u8>,
+    /// The contexts' adaptation shifts (fast, slow).
+    rates: (u32, u32),
 }
 
 impl Default for RangeEncoder {
@@ -185,6 +203,15 @@ impl RangeEncoder {
             cache: 0,
             cache_size: 1,
             out: Vec::new(),
+            rates: (FAST, SLOW),
+        }
+    }
+
+    /// An encoder whose contexts adapt as `model`'s do.
+    fn for_model(model: ContextModel) -> RangeEncoder {
+        RangeEncoder {
+            rates: model.rates(),
+            ..RangeEncoder::new()
         }
     }
 
@@ -224,7 +251,7 @@ impl RangeEncoder {
     #[inline]
     fn encode(&mut self, ctx: &mut Ctx, bit: bool) {
         self.encode_p0(ctx.p0(), bit);
-        ctx.update(bit);
+        ctx.update(bit, self.rates);
     }
 
     /// A bit at probability ½ (no context).
@@ -248,15 +275,19 @@ pub struct RangeDecoder<'a> {
     range: u32,
     input: &'a [u8],
     pos: usize,
+    /// The contexts' adaptation shifts (fast, slow).
+    rates: (u32, u32),
 }
 
 impl<'a> RangeDecoder<'a> {
     pub fn new(input: &'a [u8]) -> Result<RangeDecoder<'a>> {
-        Self::with_preamble(input, 0)
+        Self::with_preamble(input, ContextModel::EveryPosition)
     }
 
-    /// A decoder of a stream whose first byte is `preamble` (see [`ContextModel::preamble`]).
-    fn with_preamble(input: &'a [u8], preamble: u8) -> Result<RangeDecoder<'a>> {
+    /// A decoder of a stream in `model`: its first byte is the model's
+    /// ([`ContextModel::preamble`]), its contexts adapt as the model's do.
+    fn with_preamble(input: &'a [u8], model: ContextModel) -> Result<RangeDecoder<'a>> {
+        let preamble = model.preamble();
         if input.len() < 5 || input[0] != preamble {
             return Err(Error::input(
                 "context-coded DCT stream: missing or bad range coder preamble",
@@ -268,6 +299,7 @@ impl<'a> RangeDecoder<'a> {
             range: u32::MAX,
             input,
             pos: 5,
+            rates: model.rates(),
         })
     }
 
@@ -299,7 +331,7 @@ impl<'a> RangeDecoder<'a> {
     #[inline]
     fn decode(&mut self, ctx: &mut Ctx) -> bool {
         let bit = self.decode_p0(ctx.p0());
-        ctx.update(bit);
+        ctx.update(bit, self.rates);
         bit
     }
 
@@ -353,6 +385,23 @@ const fn nb2_bucket(m: u32) -> usize {
     }
 }
 
+/// Sign contexts of [`ContextModel::LineEndsWide`]: the signs of the neighbours one step back
+/// along the last, the first and the last-but-one axis and two steps back along the last
+/// (3⁴; the first two models use the first 9: the signs one step back along the last and the
+/// first axis).
+const WIDE_SIGN_CONTEXTS: usize = 81;
+
+/// The sign context of [`ContextModel::LineEndsWide`] from the neighbours' signs + 1 (0, 1,
+/// 2): left, back, up, and left two steps back. A smooth component's DCT coefficients keep
+/// or alternate their signs along each axis (a ramp's are all of one sign at odd
+/// frequencies), so a neighbour two steps back, of the same parity, predicts the sign well.
+/// The second neighbours along the other axes too (3⁶ contexts) made files larger: the
+/// coder learns 729 contexts too slowly (docs/compression.md, "Second neighbours").
+#[inline]
+fn wide_signs(s: [usize; 4]) -> usize {
+    s.iter().fold(0, |acc, &x| acc * 3 + x)
+}
+
 /// All contexts of the model.
 struct Model {
     zero: Vec<Ctx>,
@@ -366,7 +415,7 @@ impl Model {
     fn new() -> Model {
         Model {
             zero: vec![Ctx::default(); COMP_CLASSES * BANDS * NBR_BUCKETS * NB2_BUCKETS],
-            sign: vec![Ctx::default(); COMP_CLASSES * 9],
+            sign: vec![Ctx::default(); COMP_CLASSES * WIDE_SIGN_CONTEXTS],
             unary: vec![Ctx::default(); COMP_CLASSES * NBR_BUCKETS * UNARY_POS],
             mantissa: vec![Ctx::default(); COMP_CLASSES * (MAX_EXP as usize + 1)],
             line: LineModel::new(),
@@ -585,14 +634,28 @@ impl BoxWalk {
             }
         }
         let band = ((usize::BITS - (sum_idx + 1).leading_zeros() - 1) as usize).min(BANDS - 1);
-        let sgn = |a: usize| -> usize {
-            if self.idx[a] > 0 {
-                (codes[b - self.strides[a]].signum() + 1) as usize
+        // The sign of the neighbour `k` steps back along axis `a` (1: none, as signum 0).
+        let sgn_at = |a: usize, k: usize| -> usize {
+            if self.idx[a] >= k {
+                (codes[b - k * self.strides[a]].signum() + 1) as usize
             } else {
                 1
             }
         };
-        let signs = if d > 0 { sgn(d - 1) * 3 + sgn(0) } else { 4 };
+        let signs = if self.wide {
+            // Left (the last axis), back (the first) and up (the last but one) one step back,
+            // left two steps back; an axis a box lacks (or that would repeat one) reads as
+            // "none".
+            let back = (d >= 2).then_some(0);
+            let up = (d >= 3).then(|| d - 2);
+            let at = |a: Option<usize>, k: usize| a.map_or(1, |a| sgn_at(a, k));
+            let left = d.checked_sub(1);
+            wide_signs([at(left, 1), at(back, 1), at(up, 1), at(left, 2)])
+        } else if d > 0 {
+            sgn_at(d - 1, 1) * 3 + sgn_at(0, 1)
+        } else {
+            4
+        };
         (band, nbr_bucket(m), nb2_bucket(m2), signs)
     }
 
@@ -623,7 +686,7 @@ fn encode_nonzero(
     signs: usize,
     q: i32,
 ) {
-    rc.encode(&mut model.sign[cc * 9 + signs], q < 0);
+    rc.encode(&mut model.sign[cc * WIDE_SIGN_CONTEXTS + signs], q < 0);
     let (unary, mantissa) = magnitude_contexts(model, cc, nb);
     encode_golomb(rc, unary, mantissa, q.unsigned_abs() as u64);
 }
@@ -832,7 +895,7 @@ fn decode_nonzero(
     nb: usize,
     signs: usize,
 ) -> Result<i32> {
-    let neg = rc.decode(&mut model.sign[cc * 9 + signs]);
+    let neg = rc.decode(&mut model.sign[cc * WIDE_SIGN_CONTEXTS + signs]);
     let (unary, mantissa) = magnitude_contexts(model, cc, nb);
     let v = decode_golomb(rc, unary, mantissa, 30)
         .ok_or_else(|| Error::input("context-coded DCT stream: coefficient exceeds 2^30"))?;
@@ -998,7 +1061,12 @@ fn decode_lines_3d<const WIDE: bool>(
                 };
                 // The line's last position is nonzero without a flag.
                 if i2 + 1 == end || rc.decode(&mut zero_ctx[at]) {
-                    let signs = (left.signum() + 1) as usize * 3 + (back[i2].signum() + 1) as usize;
+                    let s = |q: i32| (q.signum() + 1) as usize;
+                    let signs = if WIDE {
+                        wide_signs([s(left), s(back[i2]), s(up[i2]), s(left2)])
+                    } else {
+                        s(left) * 3 + s(back[i2])
+                    };
                     cur[i2] = decode_nonzero(rc, model, cc, nb, signs)?;
                 }
                 left2 = left;
@@ -1037,7 +1105,7 @@ pub fn encode_model(comps: &[Coefficients], model: ContextModel) -> Vec<u8> {
             dct::put_varint(&mut out, e as u64);
         }
     }
-    let mut rc = RangeEncoder::new();
+    let mut rc = RangeEncoder::for_model(model);
     let mut m = Model::new();
     for (k, c) in comps.iter().enumerate() {
         match model {
@@ -1087,7 +1155,7 @@ pub(crate) fn decode_with(
         components,
         "context-coded DCT stream",
     )?;
-    let mut rc = RangeDecoder::with_preamble(&payload[pos..], model.preamble())?;
+    let mut rc = RangeDecoder::with_preamble(&payload[pos..], model)?;
     let mut m = Model::new();
     let mut out = Vec::with_capacity(components);
     for (k, extent) in extents.into_iter().enumerate() {
