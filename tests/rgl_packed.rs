@@ -725,3 +725,66 @@ fn the_rgl_database_files_meet_issue_19s_sizes() {
         }
     }
 }
+
+/// A packed RGL file written before the packed tensors' coefficients moved to the context
+/// model `line_ends2` (by the main binary at db7d7bd; fixtures/rgl/README.md): its header
+/// names no model, so it reads in `line_ends` and evaluates to what that binary's `eval`
+/// printed, bit for bit (the header's default: `codec::tensor` tests).
+#[test]
+fn a_packed_file_of_the_line_end_model_still_reads() {
+    let old =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/ggx-packed-line-ends.bpk");
+    // `brdfpack eval FILE --wi-deg A --wo-deg B` of the db7d7bd binary.
+    let expected: [(&str, &str, [f64; 3]); 4] = [
+        (
+            "30,0",
+            "40,170",
+            [1.0098874420122035, 0.8386824584238084, 0.3520827244029049],
+        ),
+        (
+            "0,0",
+            "60,45",
+            [
+                0.12947570435079656,
+                0.10743987330436995,
+                0.04489614562761308,
+            ],
+        ),
+        (
+            "75,20",
+            "10,-100",
+            [
+                0.13824501262863004,
+                0.11474514849962895,
+                0.04800518618672694,
+            ],
+        ),
+        (
+            "45,90",
+            "45,-90",
+            [1.6167373752525396, 1.3471515335634927, 0.5773618404422356],
+        ),
+    ];
+    for (wi, wo, want) in expected {
+        let out = brdfpack()
+            .args([
+                "eval",
+                old.to_str().unwrap(),
+                "--wi-deg",
+                wi,
+                "--wo-deg",
+                wo,
+            ])
+            .assert()
+            .success()
+            .get_output()
+            .stdout
+            .clone();
+        let got: Vec<f64> = String::from_utf8(out)
+            .unwrap()
+            .split_whitespace()
+            .map(|v| v.parse().unwrap())
+            .collect();
+        assert_eq!(got, want.to_vec(), "wi {wi} wo {wo}");
+    }
+}

@@ -45,7 +45,20 @@ pub enum TensorCoding {
         /// negative BRDF the source never had).
         #[serde(default, skip_serializing_if = "std::ops::Not::not")]
         nonnegative: bool,
+        /// The context coder's model of the coefficients: `line_ends2` for files written
+        /// since 2026-12-07; absent (`line_ends`) in those written before, which still read.
+        #[serde(default = "line_ends", skip_serializing_if = "is_line_ends")]
+        model: ContextModel,
     },
+}
+
+/// The model of packed tensors written before `line_ends2` (a header without `model`).
+fn line_ends() -> ContextModel {
+    ContextModel::LineEnds
+}
+
+fn is_line_ends(m: &ContextModel) -> bool {
+    *m == ContextModel::LineEnds
 }
 
 impl TensorCoding {
@@ -94,6 +107,7 @@ impl TensorCoding {
             step,
             deadzone,
             nonnegative: values.iter().all(|&v| v >= 0.0),
+            model: ContextModel::CURRENT,
         }
     }
 
@@ -140,6 +154,7 @@ impl TensorCoding {
                 colour,
                 step,
                 deadzone,
+                model,
                 ..
             } => {
                 let curve = Curve::SignedLog { eps: eps.clone() };
@@ -161,9 +176,7 @@ impl TensorCoding {
                     dct::check_range(&coef, *step)?;
                     quantized.push(coefcode::quantize_deadzone(&coef, dims, *step, *deadzone));
                 }
-                // The packed RGL form's coefficients stay in the line-end model its
-                // readers decode (`decode` below).
-                Ok(coefcode::encode_model(&quantized, ContextModel::LineEnds))
+                Ok(coefcode::encode_model(&quantized, *model))
             }
         }
     }
@@ -204,11 +217,12 @@ impl TensorCoding {
                 colour,
                 step,
                 nonnegative,
+                model,
                 ..
             } => {
                 let curve = Curve::SignedLog { eps: eps.clone() };
                 let floor = if *nonnegative { 0.0 } else { f32::NEG_INFINITY };
-                let quantized = coefcode::decode(payload, dims, channels, ContextModel::LineEnds)?;
+                let quantized = coefcode::decode(payload, dims, channels, *model)?;
                 let planes: Vec<Vec<f32>> = quantized
                     .iter()
                     .map(|q| dct::inverse(q, dims, *step))
@@ -290,6 +304,35 @@ mod tests {
         (v, dims)
     }
 
+    /// New codings are in the current context model and say so; a header without `model`
+    /// (every packed file written before it) reads as the line-end model, and a stream
+    /// decodes only in the model it was written in.
+    #[test]
+    fn the_context_model_is_recorded_and_old_headers_read_as_line_ends() {
+        let (v, dims) = sample();
+        let c = TensorCoding::dct_for(&v, &dims, 3, 1e-3, 0.05, 0.5);
+        let json = serde_json::to_value(&c).unwrap();
+        assert_eq!(json["model"], "line_ends2");
+        let mut old = json.clone();
+        old.as_object_mut().unwrap().remove("model");
+        let old: TensorCoding = serde_json::from_value(old).unwrap();
+        let TensorCoding::Dct { model, .. } = &old else {
+            panic!("{old:?}")
+        };
+        assert_eq!(*model, ContextModel::LineEnds);
+        assert!(!serde_json::to_string(&old).unwrap().contains("model"));
+        let (new_bytes, old_bytes) = (
+            c.encode(&v, &dims, 3).unwrap(),
+            old.encode(&v, &dims, 3).unwrap(),
+        );
+        assert_ne!(new_bytes, old_bytes);
+        assert_eq!(
+            c.decode(&new_bytes, &dims, 3).unwrap(),
+            old.decode(&old_bytes, &dims, 3).unwrap()
+        );
+        assert!(old.decode(&new_bytes, &dims, 3).is_err());
+    }
+
     /// A tensor with no negative value (zeros beside bright nodes) decodes with none at a
     /// coarse step, where the signed curve's inverse dips below 0 without the clamp; a
     /// tensor that has negative values keeps them.
@@ -328,6 +371,7 @@ mod tests {
             step,
             deadzone,
             nonnegative: false,
+            model: ContextModel::CURRENT,
         };
         let raw = unclamped
             .decode(&unclamped.encode(&v, &dims, 3).unwrap(), &dims, 3)
@@ -416,6 +460,7 @@ mod tests {
             step: 0.1,
             deadzone: 0.5,
             nonnegative: false,
+            model: ContextModel::CURRENT,
         };
         assert!(bad.decode(&p, &dims, 3).is_err());
     }
