@@ -144,29 +144,10 @@ fn old_headers_parse_unweighted_and_serialize_byte_for_byte() {
 /// payload, and today's `dct:step=0.01` (the current model) decodes to the same table.
 #[test]
 fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
-    let (p, old) = fixture("ggx-dct-context-v1.bpk");
-    let header = native::read_header(&old, &p).unwrap();
-    let CodecSpec::DctContext {
-        transform, coding, ..
-    } = &header.codec
-    else {
-        panic!("{:?}", header.codec)
-    };
-    assert_eq!(coding.model, ContextModel::EveryPosition);
-    let eps = match &transform.curve {
-        Curve::Log { eps } | Curve::SignedLog { eps } => eps.clone(),
-        Curve::Linear => vec![0.0; 3],
-    };
-    // The same tolerance as the `dct` file above, for the same reason (the fast inverse DCT
-    // may change its summation order); the coefficients themselves are the old ones exactly,
-    // as the payload check below shows.
-    assert_decodes_near(&old, &p, "ggx-dct-context-v1-decoded.bpk", &eps);
-    let (s, src) = fixture("ggx-lossless.bpk");
-    let source = native::from_bytes(&src, &s).unwrap();
-    let payload = header.codec.encode(&source).unwrap();
-    assert!(
-        old.windows(payload.len()).any(|w| w == payload),
-        "the first model's encoder no longer writes the old payload"
+    let (codec, source, payload) = old_context_file(
+        "ggx-dct-context-v1.bpk",
+        "ggx-dct-context-v1-decoded.bpk",
+        ContextModel::EveryPosition,
     );
     let now = CodecRequest::parse("dct:step=0.01")
         .unwrap()
@@ -187,14 +168,8 @@ fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
         ends.len(),
         payload.len()
     );
-    let back = now.decode(&ends, &Layout::of(&source)).unwrap();
-    let first = header.codec.decode(&payload, &Layout::of(&source)).unwrap();
     // Same coefficients (same quantizer), other stream: the same decoded table.
-    assert!(
-        back.iter()
-            .zip(&first)
-            .all(|(a, b)| a.to_bits() == b.to_bits())
-    );
+    assert_same_table(&now, &ends, &codec, &payload, &source);
 }
 
 /// A `dct` file of the line-end model (written by the main binary at db7d7bd, before the zero
@@ -203,7 +178,33 @@ fn a_first_model_context_file_decodes_to_what_the_old_binary_decoded() {
 /// model codes the same coefficients into a stream that decodes to the same table.
 #[test]
 fn a_line_end_model_file_decodes_to_what_the_old_binary_decoded() {
-    let (p, old) = fixture("ggx-dct-context-v2.bpk");
+    let (codec, source, payload) = old_context_file(
+        "ggx-dct-context-v2.bpk",
+        "ggx-dct-context-v2-decoded.bpk",
+        ContextModel::LineEnds,
+    );
+    let mut now = codec.clone();
+    if let CodecSpec::DctContext { coding, .. } = &mut now {
+        coding.model = ContextModel::CURRENT;
+    }
+    assert_ne!(ContextModel::CURRENT, ContextModel::LineEnds);
+    let wide = now.encode(&source).unwrap();
+    assert_ne!(wide, payload);
+    assert_same_table(&now, &wide, &codec, &payload, &source);
+}
+
+/// The context-coded fixture `name`, written by an old binary in `model`: its header names
+/// that model, it decodes to `decoded` (what that binary decoded; within the tolerance of the
+/// `dct` file above, for the same reason: the fast inverse DCT may change its summation order,
+/// while the coefficients themselves are the old ones exactly, as the payload check shows),
+/// and that model's encoder still writes its very payload from the lossless fixture. Returns
+/// the file's codec, the lossless source and that payload.
+fn old_context_file(
+    name: &str,
+    decoded: &str,
+    model: ContextModel,
+) -> (CodecSpec, brdfpack::table::Table, Vec<u8>) {
+    let (p, old) = fixture(name);
     let header = native::read_header(&old, &p).unwrap();
     let CodecSpec::DctContext {
         transform, coding, ..
@@ -211,31 +212,35 @@ fn a_line_end_model_file_decodes_to_what_the_old_binary_decoded() {
     else {
         panic!("{:?}", header.codec)
     };
-    assert_eq!(coding.model, ContextModel::LineEnds);
+    assert_eq!(coding.model, model);
     let eps = match &transform.curve {
         Curve::Log { eps } | Curve::SignedLog { eps } => eps.clone(),
         Curve::Linear => vec![0.0; 3],
     };
-    assert_decodes_near(&old, &p, "ggx-dct-context-v2-decoded.bpk", &eps);
+    assert_decodes_near(&old, &p, decoded, &eps);
     let (s, src) = fixture("ggx-lossless.bpk");
     let source = native::from_bytes(&src, &s).unwrap();
     let payload = header.codec.encode(&source).unwrap();
     assert!(
         old.windows(payload.len()).any(|w| w == payload),
-        "the line-end model's encoder no longer writes the old payload"
+        "the {model:?} model's encoder no longer writes the old payload"
     );
-    let mut now = header.codec.clone();
-    if let CodecSpec::DctContext { coding, .. } = &mut now {
-        coding.model = ContextModel::CURRENT;
-    }
-    assert_ne!(ContextModel::CURRENT, ContextModel::LineEnds);
-    let wide = now.encode(&source).unwrap();
-    assert_ne!(wide, payload);
-    let back = now.decode(&wide, &Layout::of(&source)).unwrap();
-    let first = header.codec.decode(&payload, &Layout::of(&source)).unwrap();
-    assert!(
-        back.iter()
-            .zip(&first)
-            .all(|(a, b)| a.to_bits() == b.to_bits())
+    (header.codec, source, payload)
+}
+
+/// `a` (of spec `sa`) and `b` (of `sb`) decode to the same table, bit for bit.
+fn assert_same_table(
+    sa: &CodecSpec,
+    a: &[u8],
+    sb: &CodecSpec,
+    b: &[u8],
+    source: &brdfpack::table::Table,
+) {
+    let layout = Layout::of(source);
+    let (x, y) = (
+        sa.decode(a, &layout).unwrap(),
+        sb.decode(b, &layout).unwrap(),
     );
+    assert_eq!(x.len(), y.len());
+    assert!(x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()));
 }

@@ -16,11 +16,13 @@
 //! back along every axis (coded before it in C order; those past their line's end are 0). The
 //! first model ([`ContextModel::EveryPosition`], files written before line ends) codes every
 //! position of the box this way, without ends; its stream starts with byte 0, the line-end
-//! model's with 1. The current model ([`ContextModel::LineEndsWide`], byte 2) is the line-end
-//! model whose zero flags also have the magnitudes of the neighbours two steps back along every
-//! axis in their context (four buckets): a DCT box's magnitudes fall off smoothly along each
-//! axis, and the second neighbours tell a run of zeros from an isolated one (0–8% smaller
-//! files on the budget tables, docs/compression.md "Second neighbours").
+//! model's with 1. The current model ([`ContextModel::LineEndsWide`], `line_ends2`, byte 2) is
+//! the line-end model with wider contexts and faster adaptation: zero flags also see the
+//! magnitudes of the neighbours two steps back along every axis (four buckets), signs the
+//! signs of left, back, up and left two steps back (81 contexts instead of 9), and each
+//! context's estimators move 2^-3 and 2^-5 of the way instead of 2^-4 and 2^-7 (18.7% smaller
+//! streams on the budget rows, 1–18% smaller `pack` files; docs/compression.md "Second
+//! neighbours").
 //!
 //! The coder is the LZMA range coder (Pavlov, 7-Zip `LzmaEnc.c`) with 16-bit probabilities,
 //! each context the average of a fast and a slow estimator: integer arithmetic only, so the
