@@ -153,10 +153,10 @@ const DEFAULT_REFINE_ONCE: u32 = 1;
 /// larger ones while the refined file leaves room under every bound
 /// ([`Control::refined_final`]; each costs a refinement, an encode and a decode, ~0.15 s on
 /// the MERL grid).
+const REFINED_TRIES: usize = 3;
 /// How much larger (a factor) the refined file at the accepted step may be and still be
 /// measured, for the larger step it may leave room for ([`Control::refined_final`]).
 const REFINED_SLACK: f64 = 1.05;
-const REFINED_TRIES: usize = 3;
 
 /// One codec variant of the rate control.
 #[derive(Clone, Copy, Debug, PartialEq)]
