@@ -59,9 +59,11 @@ pub enum ContextModel {
     /// Each line along the last axis first codes where it ends; positions after its last
     /// nonzero are not coded (they are zero), the last one's zero flag is implied.
     LineEnds,
-    /// [`ContextModel::LineEnds`] with the zero flag's context widened by the neighbours two
-    /// steps back along every axis (files written since 2026-12-07). Named `line_ends2` in
-    /// headers: every byte counts in a preview file of 700 B.
+    /// [`ContextModel::LineEnds`] with wider contexts and faster adaptation (files written
+    /// since 2026-12-07): zero flags also see the neighbours two steps back along every axis,
+    /// signs the signs of left, back, up and left two steps back, and the contexts adapt with
+    /// the shifts [`FAST_WIDE`], [`SLOW_WIDE`] (module doc). Named `line_ends2` in headers:
+    /// every byte counts in a preview file of 700 B.
     #[serde(rename = "line_ends2")]
     LineEndsWide,
 }

@@ -980,21 +980,8 @@ impl Control<'_> {
         let dims = self.table.grid().shape();
         let v = self.variant;
         (self.progress)(&format!("trying step {s:.4e} ({})", v.describe()));
-        let mut spec = CodecSpec::DctContext {
-            domain: if v.refine > 0 {
-                Domain::FillRefined {
-                    iterations: v.refine,
-                }
-            } else {
-                Domain::FillInvalid
-            },
-            transform: self.transform.clone(),
-            dct: dct::DctStage { step: vec![s; c] },
-            coding: ContextCoding::new(v.deadzone),
-            residual: None,
-        };
+        // The payload in whichever line-end model codes it smaller; the spec records it.
         let (model, payload) = if v.refine > 0 {
-            let coding = ContextCoding::new(v.deadzone);
             let coefs = dct_coefficients_for(
                 self.table,
                 self.transform,
@@ -1002,7 +989,7 @@ impl Control<'_> {
                     iterations: v.refine,
                 },
                 &vec![s; c],
-                &coding,
+                &ContextCoding::new(v.deadzone),
             )?;
             coefcode::encode_smaller(&coefcode::quantize_all(
                 &coefs,
@@ -1018,9 +1005,22 @@ impl Control<'_> {
                 v.deadzone,
             ))
         };
-        if let CodecSpec::DctContext { coding, .. } = &mut spec {
-            coding.model = model;
-        }
+        let spec = CodecSpec::DctContext {
+            domain: if v.refine > 0 {
+                Domain::FillRefined {
+                    iterations: v.refine,
+                }
+            } else {
+                Domain::FillInvalid
+            },
+            transform: self.transform.clone(),
+            dct: dct::DctStage { step: vec![s; c] },
+            coding: ContextCoding {
+                deadzone: v.deadzone,
+                model,
+            },
+            residual: None,
+        };
         let e = self.measure_payload(&spec, &payload, s)?;
         Ok((spec, payload, e))
     }
