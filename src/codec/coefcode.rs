@@ -1090,9 +1090,14 @@ pub fn encode(comps: &[Coefficients]) -> Vec<u8> {
 /// The smaller payload of the two line-end models and its model (the current one on a tie).
 /// The second neighbours' contexts are four times as many: on a sparse box (a small file)
 /// learning them can cost more than they save (up to 1% on the preview budget's files).
+/// The two streams are coded on two threads: each coder is serial, and the rate control
+/// codes every trial this way (on chrome-steel, an NBRDF fit whose files are 250–450 KB, the
+/// second coding was 0.2 s of a 2.5 s `pack`).
 pub fn encode_smaller(comps: &[Coefficients]) -> (ContextModel, Vec<u8>) {
-    let wide = encode_model(comps, ContextModel::LineEndsWide);
-    let plain = encode_model(comps, ContextModel::LineEnds);
+    let (wide, plain) = rayon::join(
+        || encode_model(comps, ContextModel::LineEndsWide),
+        || encode_model(comps, ContextModel::LineEnds),
+    );
     if plain.len() < wide.len() {
         (ContextModel::LineEnds, plain)
     } else {
