@@ -330,6 +330,9 @@ fn curve_scale(
 /// keep nearly all their precision while the values far below them stop costing bits.
 const FLOOR_FRACTION: f64 = 0.5;
 
+/// Largest factor [`ErrorEstimator::curve_raise_limit`] considers.
+pub const RAISE_MAX: f64 = 256.0;
+
 /// Core pairs below which no floor is drawn: its 1% quantile would rest on fewer than 80
 /// pairs.
 const FLOOR_MIN_CORE_PAIRS: usize = 8000;
@@ -700,6 +703,152 @@ impl ErrorEstimator {
             "ErrorEstimator::measure: data length"
         );
         self.measure_by(|s, g| s.apply(data, g))
+    }
+
+    /// The largest factor K (on a ladder of √2 steps, at most [`RAISE_MAX`]) by which the
+    /// curve's ε per channel `eps` may be multiplied while a percentile bound with
+    /// `allowance` (0.01 for p99) grows by at most `growth` for the same error in the curve's
+    /// space; 1 when even √2 grows it more.
+    ///
+    /// An error δ of the curve ln(ε + f) is a relative error δ·(ε + f)/(f + ε_m) of f: raising
+    /// ε to K·ε multiplies it by A = (K·ε + f)/(ε + f), which is near 1 for the values far
+    /// above ε and K for those far below. Modelling δ as Gaussian and alike everywhere, the
+    /// bound's quantile t solves mean over the core's values of P(|δ|·A > t) = allowance,
+    /// and the growth is t(K)/t(1). A diffuse body whose darkest core values sit near ε
+    /// grows at once; a material whose dark values are few (fewer than the allowance) and
+    /// far below the rest grows little until K·ε reaches the bulk of its values.
+    pub fn curve_raise_limit(&self, eps: &[f64], allowance: f64, growth: f64) -> f64 {
+        let c = self.channels;
+        if eps.len() != c || allowance <= 0.0 || allowance >= 0.5 || growth <= 1.0 {
+            return 1.0;
+        }
+        // A depends on f/ε alone: the core's values as a histogram of x = f/ε in bins of
+        // ln x a tenth wide (x < 1e-6 counted as 0, x > 1e9 as 1e9).
+        let core: Vec<usize> = (0..self.pairs.count())
+            .filter(|&i| in_core_cos(self.pairs.cos_i[i], self.pairs.cos_o[i]))
+            .collect();
+        if core.len() * c < 100 {
+            return 1.0;
+        }
+        const LOW: f64 = -13.8; // ln 1e-6
+        const BINS: usize = 345; // up to ln 1e9 ≈ 20.7
+        let mut counts = vec![0usize; BINS + 1];
+        for &i in &core {
+            for (k, &e) in eps.iter().enumerate() {
+                let x = self.reference[i * c + k].abs() / e.max(f64::MIN_POSITIVE);
+                let b = if x > 0.0 {
+                    (((x.ln() - LOW) * 10.0).floor().max(-1.0) + 1.0).min(BINS as f64) as usize
+                } else {
+                    0
+                };
+                counts[b] += 1;
+            }
+        }
+        let n = (core.len() * c) as f64;
+        let bins: Vec<(f64, f64)> = counts
+            .iter()
+            .enumerate()
+            .filter(|&(_, &m)| m > 0)
+            .map(|(b, &m)| {
+                let x = if b == 0 {
+                    0.0
+                } else {
+                    (LOW + (b as f64 - 0.5) / 10.0).exp()
+                };
+                (x, m as f64 / n)
+            })
+            .collect();
+        // t with mean P(|N(0,1)|·A > t) = allowance, by bisection in log t.
+        let quantile = |k: f64| {
+            let share = |t: f64| {
+                bins.iter()
+                    .map(|&(x, w)| {
+                        let a = (k + x) / (1.0 + x);
+                        w * crate::math::erfc(t / (a * std::f64::consts::SQRT_2))
+                    })
+                    .sum::<f64>()
+            };
+            let (mut lo, mut hi) = (1e-3f64.ln(), (100.0 * k.max(1.0)).ln());
+            for _ in 0..40 {
+                let mid = 0.5 * (lo + hi);
+                if share(mid.exp()) > allowance {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            (0.5 * (lo + hi)).exp()
+        };
+        let t1 = quantile(1.0);
+        let mut k_ok = 1.0;
+        for j in 1.. {
+            let k = (j as f64 / 2.0).exp2();
+            if k > RAISE_MAX || quantile(k) > growth * t1 {
+                break;
+            }
+            k_ok = k;
+        }
+        k_ok
+    }
+
+    /// How much of the percentile bound's tail sits at the dark end of the core, for a table
+    /// given by the values of [`ErrorEstimator::cells`] alone: of the core values whose
+    /// relative error exceeds the `1 − allowance` quantile, the share that lies among the
+    /// darkest `2·allowance` of the core's values (each value taken relative to its
+    /// channel's core median), divided by that fraction. 1 when the tail is spread like the
+    /// values; up to 1/(2·allowance) when it is all at the dark end, where the curve's small
+    /// ε makes a cliff of values that fall to 0 (the NBRDF fits clamp at 0) and the error
+    /// gathers at the cliff. 0 without core values or without a tail.
+    pub fn dark_tail_share(&self, values: &[f32], allowance: f64) -> f64 {
+        let c = self.channels;
+        if allowance <= 0.0 || allowance >= 0.5 || c == 0 {
+            return 0.0;
+        }
+        let read = self.cells();
+        let mut g = vec![0.0; self.pairs.count() * c];
+        self.stencil
+            .apply_at_cells(values, &mut g, |f| read.position(f));
+        // Core values: (f relative to its channel's core median, relative error).
+        let core: Vec<usize> = (0..self.pairs.count())
+            .filter(|&i| in_core_cos(self.pairs.cos_i[i], self.pairs.cos_o[i]))
+            .collect();
+        if core.len() * c < 100 {
+            return 0.0;
+        }
+        let medians: Vec<f64> = (0..c)
+            .map(|k| {
+                let mut v: Vec<f64> = core
+                    .iter()
+                    .map(|&i| self.reference[i * c + k].abs())
+                    .collect();
+                percentile(&mut v, 0.5)
+            })
+            .collect();
+        let eps = self.epsilon_low.max(f64::MIN_POSITIVE);
+        let mut darkness = Vec::with_capacity(core.len() * c);
+        let mut rel = Vec::with_capacity(core.len() * c);
+        for &i in &core {
+            for k in 0..c {
+                let f = self.reference[i * c + k];
+                darkness.push(f.abs() / medians[k].max(f64::MIN_POSITIVE));
+                rel.push((g[i * c + k] - f).abs() / (f.abs() + eps));
+            }
+        }
+        let dark_end = percentile(&mut darkness.clone(), 2.0 * allowance);
+        let tail = percentile(&mut rel.clone(), 1.0 - allowance);
+        let (mut exceeding, mut dark) = (0usize, 0usize);
+        for (&d, &r) in darkness.iter().zip(&rel) {
+            if r > tail {
+                exceeding += 1;
+                if d <= dark_end {
+                    dark += 1;
+                }
+            }
+        }
+        if exceeding == 0 {
+            return 0.0;
+        }
+        dark as f64 / exceeding as f64 / (2.0 * allowance)
     }
 
     /// [`ErrorEstimator::measure`] of a table given by the values of
@@ -1235,6 +1384,77 @@ mod tests {
         // The estimator built from the set draws the same floor.
         let est = ErrorEstimator::new(&tinted_t, &r, None, 1 << 15).unwrap();
         assert_eq!(est.curve_floor(&preview), Some(f));
+    }
+
+    /// The raised curve's limit on a Lambertian table, whose core values are all f: every
+    /// value's amplification is A = (K·ε + f)/(ε + f), so the percentile grows by exactly
+    /// A and the limit is the last √2 step with A ≤ the growth allowed.
+    #[test]
+    fn a_raised_curve_stops_where_the_percentile_grows_by_the_limit() {
+        // Extended below the horizon: no pair near it interpolates an empty cell.
+        let g = parse_grid_spec("halfdiff3:8x8x12,horizon=extend").unwrap();
+        let m = Model::parse("lambert:albedo=0.5").unwrap();
+        let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
+        let source = crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: crate::table::Interp::Linear,
+        };
+        let r = ReferenceSet::new(&source, 1 << 14);
+        let est = ErrorEstimator::new(&t, &r, None, 1 << 14).unwrap();
+        let f = 0.5 / std::f64::consts::PI;
+        // One channel (grey).
+        let limit = |x: f64| est.curve_raise_limit(&[f / x], 0.01, 1.25);
+        // f = 100 ε: A ≤ 1.25 for K ≤ 26.25 (the histogram's bins move x by < 5%).
+        assert!(
+            (limit(100.0) - 2f64.powf(4.5)).abs() < 1e-9,
+            "{}",
+            limit(100.0)
+        );
+        // f = ε: A(√2) = 1.21, A(2) = 1.5.
+        assert!((limit(1.0) - 2f64.sqrt()).abs() < 1e-12, "{}", limit(1.0));
+        // f far below ε: even √2 nearly multiplies the error by √2.
+        assert_eq!(limit(0.01), 1.0);
+        // Far above ε the ladder ends at RAISE_MAX.
+        assert_eq!(limit(1e7), RAISE_MAX);
+        // No percentile (allowance 0) or no growth allowed: no raise.
+        assert_eq!(est.curve_raise_limit(&[f], 0.0, 1.25), 1.0);
+        assert_eq!(est.curve_raise_limit(&[f], 0.01, 1.0), 1.0);
+        // An ε per channel of another table: no raise.
+        assert_eq!(est.curve_raise_limit(&[f; 3], 0.01, 1.25), 1.0);
+    }
+
+    /// The dark tail's share: none without errors, about 1 for errors in proportion to the
+    /// values, near its maximum 1/(2·allowance) = 50 for an absolute offset (whose relative
+    /// error is largest at the darkest values).
+    #[test]
+    fn the_dark_tail_share_finds_errors_at_the_dark_end() {
+        let g = parse_grid_spec("halfdiff3:8x8x12").unwrap();
+        let m = Model::parse("lambert:albedo=0.6/0.3/0.1+ggx:alpha=0.3,fresnel=au").unwrap();
+        let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
+        let source = crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: crate::table::Interp::Linear,
+        };
+        let r = ReferenceSet::new(&source, 1 << 15);
+        let est = ErrorEstimator::new(&t, &r, None, 1 << 15).unwrap();
+        let cells = est.cells();
+        let at_cells = |change: &dyn Fn(f32, usize) -> f32| {
+            let mut v = vec![0f32; cells.len() * 3];
+            cells.for_each_in(0..t.grid().cells(), |f, place| {
+                for k in 0..3 {
+                    let x = t.data()[f as usize * 3 + k];
+                    v[place * 3 + k] = change(x, f as usize * 3 + k);
+                }
+            });
+            v
+        };
+        assert_eq!(est.dark_tail_share(&at_cells(&|x, _| x), 0.01), 0.0);
+        // A deterministic ±1% relative error per value.
+        let wobble = |i: usize| ((i as f64 * 0.618_034).fract() * 2.0 - 1.0) * 0.01;
+        let spread = est.dark_tail_share(&at_cells(&|x, i| x * (1.0 + wobble(i)) as f32), 0.01);
+        assert!(spread > 0.2 && spread < 4.0, "spread: {spread}");
+        let offset = est.dark_tail_share(&at_cells(&|x, _| x + 1e-3), 0.01);
+        assert!(offset > 40.0 && offset <= 50.0, "offset: {offset}");
     }
 
     /// Every draw gives pair k again as its set holds it, bit for bit.

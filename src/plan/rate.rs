@@ -106,6 +106,7 @@ impl Effort {
                     deadzone: DEFAULT_DEADZONE,
                     refine: 0,
                     refine_once: DEFAULT_REFINE_ONCE,
+                    raise: 1.0,
                 }),
             }
         }
@@ -118,6 +119,7 @@ impl Effort {
             deadzone,
             refine,
             refine_once: 0,
+            raise: 1.0,
         };
         match self {
             Effort::Fast => vec![v(1.0, DEFAULT_DEADZONE, 0)],
@@ -167,13 +169,21 @@ struct Variant {
     /// Passes of the refined fill made once, at the first candidate's step, and kept for the
     /// candidates after it (0: none).
     refine_once: u32,
+    /// The factor a raised curve ([`raised_curve`]) multiplies the first curve's ε by (1: not
+    /// raised).
+    raise: f64,
 }
 
 impl Variant {
     fn describe(&self) -> String {
         format!(
-            "dct context ε×{} deadzone={}{}",
+            "dct context ε×{}{} deadzone={}{}",
             self.eps_scale,
+            if self.raise != 1.0 {
+                format!(" raised ×{:.3}", self.raise)
+            } else {
+                String::new()
+            },
             self.deadzone,
             if self.refine > 0 {
                 format!(" refine={}", self.refine)
@@ -424,12 +434,49 @@ fn encode(
         && by_scale.len() == 1
         && variants.iter().all(|v| v.refine == 0);
     let lent_print = lend.then(|| fingerprint(access.table()));
-    for scale in by_scale {
+    // The curves run, each with its variants: the effort's, then at most one raised curve
+    // ([`raised_curve`]) decided from what the last one made.
+    let mut curves: Vec<(Option<f64>, Vec<f64>, Vec<Variant>)> = by_scale
+        .iter()
+        .map(|&scale| {
+            let eps = eps_of(scale);
+            let on_it = variants
+                .iter()
+                .filter(|v| eps_of(v.eps_scale) == eps)
+                .copied()
+                .collect();
+            (Some(scale), eps, on_it)
+        })
+        .collect();
+    let mut raised = false;
+    let mut next = 0;
+    while next < curves.len() {
+        let (scale, eps, curve_variants) = curves[next].clone();
+        next += 1;
+        if next > 1
+            && lend
+            && let Access::Lend(t, again) = &mut access
+        {
+            // The lent samples were freed or hold the first curve's decodes: read them again
+            // (the decode buffer first freed, so that the peak stays the first curve's).
+            progress("reading the samples again for a second curve");
+            decoded = Vec::new();
+            crate::memory::release_free_memory();
+            let back = again()?;
+            let same_size = back.len() == values;
+            t.give_back_samples(back);
+            if !same_size || Some(fingerprint(t)) != lent_print {
+                return Err(Error::Failure(
+                    "the table's samples read again differ from the ones encoded (the input \
+                     changed while it was being compressed?); no file written"
+                        .to_string(),
+                ));
+            }
+        }
         let t = Instant::now();
-        let made = prepared
-            .take()
-            .filter(|p| p.scale == scale && p.epsilon == est.epsilon() && p.floor == curve_floor);
-        let eps = eps_of(scale);
+        let made = prepared.take().filter(|p| {
+            Some(p.scale) == scale && p.epsilon == est.epsilon() && p.floor == curve_floor
+        });
         let seconds_before = made.as_ref().map_or(0.0, |p| p.seconds);
         let (transform, coefs, max_coef) = match made {
             Some(p) => (p.transform, p.coefs, p.max_coef),
@@ -461,7 +508,7 @@ fn encode(
             format!("transform + DCT ({})", describe_eps(&eps, est.epsilon())),
             seconds_before + t.elapsed().as_secs_f64(),
         ));
-        for v in variants.iter().filter(|v| eps_of(v.eps_scale) == eps) {
+        for v in &curve_variants {
             let t = Instant::now();
             let table = access.table();
             let layout = Layout::of(table);
@@ -497,6 +544,28 @@ fn encode(
                 format!("rate control ({})", v.describe()),
                 t.elapsed().as_secs_f64(),
             ));
+        }
+        if next == curves.len() && !raised {
+            raised = true;
+            let table = access.table();
+            if let Some(b) = &best
+                && let Some(k) = raised_curve(table, est, budget, effort, &b.0, &b.1)?
+            {
+                let base = match &b.0 {
+                    CodecSpec::DctContext { transform, .. } => transform
+                        .curve
+                        .eps()
+                        .map(<[f64]>::to_vec)
+                        .unwrap_or_default(),
+                    _ => Vec::new(),
+                };
+                let first = curve_variants[0];
+                curves.push((
+                    None,
+                    base.iter().map(|e| e * k).collect(),
+                    vec![Variant { raise: k, ..first }],
+                ));
+            }
         }
     }
     if let (Access::Lend(t, again), true) = (&mut access, lend) {
@@ -560,6 +629,70 @@ fn encode(
         trials,
         timings,
     })))
+}
+
+/// The growth of the percentile bound a raised curve may cost at most, for the same error in
+/// the curve's space ([`ErrorEstimator::curve_raise_limit`]).
+const RAISE_GROWTH: f64 = 1.25;
+
+/// The least factor a raised curve multiplies ε by: closer to 1 the two curves make files
+/// within a few percent of each other.
+const RAISE_AT_LEAST: f64 = 2.8;
+
+/// How concentrated at the dark end of the core the percentile bound's tail must be for a
+/// raised curve to be tried ([`ErrorEstimator::dark_tail_share`]: 1 when the tail is spread
+/// like the values, 50 when it is all among the darkest 2%).
+const DARK_TAIL_AT_LEAST: f64 = 8.0;
+
+/// The factor by which to raise the ε of the curve of the accepted file `spec` (`payload`)
+/// for a second rate control, or `None`.
+///
+/// A measured material whose values fall to 0 somewhere in the core (the NBRDF fits clamp
+/// at 0: brass, hematite, phenolics) has, under a curve of small ε, a cliff of several nats
+/// where they do, and the percentile bound's tail gathers there: the file pays for the
+/// cliff's detail with a small step everywhere. A larger ε flattens the cliff; the
+/// cost is the relative precision of the values below the new ε, which the bound weighs
+/// only beyond its allowance. Both are read from the data rather than assumed: the tail's
+/// place from the accepted file's errors (at least [`DARK_TAIL_AT_LEAST`] times as many of
+/// its pairs at the dark end as the values), the factor as the largest whose amplification
+/// of the errors below the new ε grows the bound by at most [`RAISE_GROWTH`] (and at least
+/// [`RAISE_AT_LEAST`]). The raised curve is rate-controlled like the first and the smaller
+/// file kept, so a wrong guess costs time, not bytes.
+///
+/// Only at the default and max efforts, for a percentile bound, on grids whose rate
+/// control holds f64 planes (a second transform of a 64⁴ table costs seconds), and for
+/// codecs that decode at the estimator's cells (1 or 3 channels).
+fn raised_curve(
+    table: &Table,
+    est: &ErrorEstimator,
+    budget: &Budget,
+    effort: Effort,
+    spec: &CodecSpec,
+    payload: &[u8],
+) -> Result<Option<f64>> {
+    let allowance = budget.relative_allowance();
+    let c = table.channels().len();
+    if effort == Effort::Fast
+        || allowance <= 0.0
+        || table.grid().cells() > F32_PLANE_CELLS
+        || !spec.decodes_cells(c)
+    {
+        return Ok(None);
+    }
+    let CodecSpec::DctContext { transform, .. } = spec else {
+        return Ok(None);
+    };
+    let Some(eps) = transform.curve.eps() else {
+        return Ok(None);
+    };
+    let k = est.curve_raise_limit(eps, allowance, RAISE_GROWTH);
+    if k < RAISE_AT_LEAST {
+        return Ok(None);
+    }
+    let cells = est.cells();
+    let mut at_cells = vec![0f32; cells.len() * c];
+    spec.decode_cells(payload, &Layout::of(table), cells, &mut at_cells)?;
+    Ok((est.dark_tail_share(&at_cells, allowance) >= DARK_TAIL_AT_LEAST).then_some(k))
 }
 
 /// Above this many cells (a plane of 64 MiB in f64) the rate control's planes are made and
