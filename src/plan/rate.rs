@@ -449,6 +449,8 @@ fn encode(
         })
         .collect();
     let mut raised = false;
+    let mut raise_found: Option<(f64, f64)> = None;
+    let mut raise_from: Option<f64> = None;
     let mut next = 0;
     while next < curves.len() {
         let (scale, eps, curve_variants) = curves[next].clone();
@@ -525,8 +527,16 @@ fn encode(
                 decoded: &mut decoded,
                 trials: &mut trials,
                 progress,
+                probe_raise: (!raised && next == curves.len() && Some(v) == curve_variants.last())
+                    .then_some(effort),
+                raise: None,
+                start: (v.raise != 1.0).then_some(raise_from).flatten(),
             };
-            let found = match ctl.run(effort.iterations()) {
+            let found = ctl.run(effort.iterations());
+            if let Some(r) = ctl.raise {
+                raise_found = Some(r);
+            }
+            let found = match found {
                 Ok(f) => f,
                 Err(e) => {
                     if let (Access::Lend(t, _), true) = (&mut access, lend) {
@@ -547,24 +557,14 @@ fn encode(
         }
         if next == curves.len() && !raised {
             raised = true;
-            let table = access.table();
-            if let Some(b) = &best
-                && let Some(k) = raised_curve(table, est, budget, effort, &b.0, &b.1)?
-            {
-                let base = match &b.0 {
-                    CodecSpec::DctContext { transform, .. } => transform
-                        .curve
-                        .eps()
-                        .map(<[f64]>::to_vec)
-                        .unwrap_or_default(),
-                    _ => Vec::new(),
-                };
-                let first = curve_variants[0];
+            if let Some((k, step)) = raise_found {
+                let first = *curve_variants.last().expect("a curve runs a variant");
                 curves.push((
                     None,
-                    base.iter().map(|e| e * k).collect(),
+                    eps.iter().map(|e| e * k).collect(),
                     vec![Variant { raise: k, ..first }],
                 ));
+                raise_from = Some(step);
             }
         }
     }
@@ -861,6 +861,14 @@ struct Control<'a> {
     decoded: &'a mut Vec<f32>,
     trials: &'a mut Vec<RateTrial>,
     progress: Progress<'a>,
+    /// The effort when this run decides whether a raised curve follows ([`raised_curve`],
+    /// from its accepted file, before its refined fill).
+    probe_raise: Option<Effort>,
+    /// The raised curve's factor, when this run decided one.
+    raise: Option<(f64, f64)>,
+    /// The first candidate's step (a raised curve starts from the step the first curve
+    /// accepted, where its files usually meet the budget too).
+    start: Option<f64>,
 }
 
 /// Aim a little inside each bound, so that the first prediction usually lands on an accepted
@@ -904,7 +912,9 @@ impl Control<'_> {
                     }
                 })
                 .fold(f64::INFINITY, f64::min);
-            let mut s = if target >= mse_max {
+            let mut s = if let Some(start) = self.start.take() {
+                start.clamp(s_min, s_max)
+            } else if target >= mse_max {
                 s_max
             } else {
                 step_for_mse(self.coefs, self.variant.deadzone, target, s_min, s_max)
@@ -975,6 +985,19 @@ impl Control<'_> {
             if meets {
                 best = Some((spec, payload, e));
             }
+        }
+        if let (Some(effort), Some(b)) = (self.probe_raise, &best)
+            && let Some(k) = raised_curve(self.table, self.est, self.budget, effort, &b.0, &b.1)?
+        {
+            // The raised curve is rate-controlled next and its refined fill made there: where
+            // it is tried it wins by far (docs/compression.md), so this curve's refinement
+            // (two or three encodes and decodes) is left out.
+            let step = match &b.0 {
+                CodecSpec::DctContext { dct, .. } => dct.step[0],
+                _ => 0.0,
+            };
+            self.raise = Some((k, step));
+            return Ok(best);
         }
         match best {
             Some(b) if self.variant.refine_once > 0 => self.refined_final(b).map(Some),
