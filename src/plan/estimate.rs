@@ -1386,21 +1386,32 @@ mod tests {
         assert_eq!(est.curve_floor(&preview), Some(f));
     }
 
+    /// A table of model `spec` on grid `grid`, and the estimator of `n` pairs of that table
+    /// against itself as a sampled source (a measured file's case: the grid error is 0).
+    fn table_source_estimator(spec: &str, grid: &str, n: usize) -> (Table, ErrorEstimator) {
+        let g = parse_grid_spec(grid).unwrap();
+        let m = Model::parse(spec).unwrap();
+        let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
+        let source = crate::table::InterpolatedTable {
+            table: t.clone(),
+            interp: crate::table::Interp::Linear,
+        };
+        let r = ReferenceSet::new(&source, n);
+        let est = ErrorEstimator::new(&t, &r, None, n).unwrap();
+        (t, est)
+    }
+
     /// The raised curve's limit on a Lambertian table, whose core values are all f: every
     /// value's amplification is A = (K·ε + f)/(ε + f), so the percentile grows by exactly
     /// A and the limit is the last √2 step with A ≤ the growth allowed.
     #[test]
     fn a_raised_curve_stops_where_the_percentile_grows_by_the_limit() {
         // Extended below the horizon: no pair near it interpolates an empty cell.
-        let g = parse_grid_spec("halfdiff3:8x8x12,horizon=extend").unwrap();
-        let m = Model::parse("lambert:albedo=0.5").unwrap();
-        let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
-        let source = crate::table::InterpolatedTable {
-            table: t.clone(),
-            interp: crate::table::Interp::Linear,
-        };
-        let r = ReferenceSet::new(&source, 1 << 14);
-        let est = ErrorEstimator::new(&t, &r, None, 1 << 14).unwrap();
+        let (_, est) = table_source_estimator(
+            "lambert:albedo=0.5",
+            "halfdiff3:8x8x12,horizon=extend",
+            1 << 14,
+        );
         let f = 0.5 / std::f64::consts::PI;
         // One channel (grey).
         let limit = |x: f64| est.curve_raise_limit(&[f / x], 0.01, 1.25);
@@ -1428,15 +1439,11 @@ mod tests {
     /// error is largest at the darkest values).
     #[test]
     fn the_dark_tail_share_finds_errors_at_the_dark_end() {
-        let g = parse_grid_spec("halfdiff3:8x8x12").unwrap();
-        let m = Model::parse("lambert:albedo=0.6/0.3/0.1+ggx:alpha=0.3,fresnel=au").unwrap();
-        let t = crate::tabulate::tabulate(&m, &g, &Default::default()).unwrap();
-        let source = crate::table::InterpolatedTable {
-            table: t.clone(),
-            interp: crate::table::Interp::Linear,
-        };
-        let r = ReferenceSet::new(&source, 1 << 15);
-        let est = ErrorEstimator::new(&t, &r, None, 1 << 15).unwrap();
+        let (t, est) = table_source_estimator(
+            "lambert:albedo=0.6/0.3/0.1+ggx:alpha=0.3,fresnel=au",
+            "halfdiff3:8x8x12",
+            1 << 15,
+        );
         let cells = est.cells();
         let at_cells = |change: &dyn Fn(f32, usize) -> f32| {
             let mut v = vec![0f32; cells.len() * 3];
