@@ -335,6 +335,19 @@ pub fn transform_with_curve(
     colour: bool,
     weight: Option<Weight>,
 ) -> Transform {
+    transform_with_curve_held(table, curve, colour, weight, true)
+}
+
+/// [`transform_with_curve`], the KLT's samples held only when `hold` (and they fit under
+/// [`KLT_SAMPLES_HELD`]); otherwise made again for each of its two passes: the same bits,
+/// without the 27 MB of the MERL grid beside what the caller holds.
+pub fn transform_with_curve_held(
+    table: &Table,
+    curve: Curve,
+    colour: bool,
+    weight: Option<Weight>,
+    hold: bool,
+) -> Transform {
     let c = table.channels().len();
     let colour = if colour && c > 1 {
         let t = Transform {
@@ -353,7 +366,7 @@ pub fn transform_with_curve(
                 }
             })
         };
-        if table.valid_count() * c * 8 <= KLT_SAMPLES_HELD {
+        if hold && table.valid_count() * c * 8 <= KLT_SAMPLES_HELD {
             let mut samples = Vec::with_capacity(table.valid_count() * c);
             rows(&mut |z| samples.extend_from_slice(z));
             Some(Colour::klt(&samples, c))

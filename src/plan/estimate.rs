@@ -800,14 +800,25 @@ impl ErrorEstimator {
     /// ε makes a cliff of values that fall to 0 (the NBRDF fits clamp at 0) and the error
     /// gathers at the cliff. 0 without core values or without a tail.
     pub fn dark_tail_share(&self, values: &[f32], allowance: f64) -> f64 {
+        let read = self.cells();
+        self.dark_tail_share_by(allowance, |g| {
+            self.stencil.apply_at_cells(values, g, |f| read.position(f))
+        })
+    }
+
+    /// [`ErrorEstimator::dark_tail_share`] of a whole table's values (`data`, every cell).
+    pub fn dark_tail_share_of_table(&self, data: &[f32], allowance: f64) -> f64 {
+        self.dark_tail_share_by(allowance, |g| self.stencil.apply(data, g))
+    }
+
+    /// The dark tail's share of the values `apply` interpolates at the estimation pairs.
+    fn dark_tail_share_by(&self, allowance: f64, apply: impl FnOnce(&mut [f64])) -> f64 {
         let c = self.channels;
         if allowance <= 0.0 || allowance >= 0.5 || c == 0 {
             return 0.0;
         }
-        let read = self.cells();
         let mut g = vec![0.0; self.pairs.count() * c];
-        self.stencil
-            .apply_at_cells(values, &mut g, |f| read.position(f));
+        apply(&mut g);
         // Core values: (f relative to its channel's core median, relative error).
         let core: Vec<usize> = (0..self.pairs.count())
             .filter(|&i| in_core_cos(self.pairs.cos_i[i], self.pairs.cos_o[i]))
@@ -834,6 +845,7 @@ impl ErrorEstimator {
                 rel.push((g[i * c + k] - f).abs() / (f.abs() + eps));
             }
         }
+        drop(g);
         let dark_end = percentile(&mut darkness.clone(), 2.0 * allowance);
         let tail = percentile(&mut rel.clone(), 1.0 - allowance);
         let (mut exceeding, mut dark) = (0usize, 0usize);

@@ -33,7 +33,8 @@ use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, Layout, dct, dct_coefficients_for, filled_plane,
-    filled_planes_f32, filled_planes_f32_in_place, refine_coefficients_f32, transform_with_curve,
+    filled_planes_f32, filled_planes_f32_in_place, refine_coefficients_f32,
+    transform_with_curve_held,
 };
 use crate::simd::dispatch;
 use crate::table::Table;
@@ -324,7 +325,7 @@ pub fn prepare_coefficients(
     let floor = floor_beside(floor, curve_scale);
     let eps = curve_eps(table.channels().len(), epsilon, scale, floor.as_deref());
     let (transform, coefs, max_coef) =
-        transform_and_coefficients(table, &eps, has_negative(table), progress);
+        transform_and_coefficients(table, &eps, has_negative(table), true, progress);
     Some(Prepared {
         scale,
         epsilon,
@@ -470,15 +471,19 @@ fn encode(
             resume,
         } = curves[next].clone();
         next += 1;
+        if next > 1 {
+            // The decode buffer is made again after this curve's transform, as for the first:
+            // held through it, it sat beside the transform's planes (`compress --max-error`
+            // of a MERL-grid table peaked 26 MB higher).
+            decoded = Vec::new();
+            crate::memory::release_free_memory();
+        }
         if next > 1
             && lend
             && let Access::Lend(t, again) = &mut access
         {
-            // The lent samples were freed or hold the first curve's decodes: read them again
-            // (the decode buffer first freed, so that the peak stays the first curve's).
+            // The lent samples were freed or held the first curve's decodes: read them again.
             progress("reading the samples again for a second curve");
-            decoded = Vec::new();
-            crate::memory::release_free_memory();
             let back = again()?;
             let same_size = back.len() == values;
             t.give_back_samples(back);
@@ -502,7 +507,17 @@ fn encode(
                 Access::Lend(t, _) if lend && plane_in_samples(t) => {
                     transform_and_coefficients_in_samples(t, &eps, has_negative, progress)
                 }
-                _ => transform_and_coefficients(access.table(), &eps, has_negative, progress),
+                // A later curve (raised, or the first made again) is made beside the
+                // estimator's stencils, which the first was made before: its KLT reads the
+                // cells twice rather than hold their values (`compress --max-error` of a
+                // MERL-grid table peaked at 147 MB with them held, 121 MB before the raise).
+                _ => transform_and_coefficients(
+                    access.table(),
+                    &eps,
+                    has_negative,
+                    next == 1,
+                    progress,
+                ),
             },
         };
         // Candidates of a large table of 1 or 3 channels are decoded at the estimator's cells
@@ -740,6 +755,7 @@ fn raised_curve(
     effort: Effort,
     spec: &CodecSpec,
     payload: &[u8],
+    decoded: &mut [f32],
 ) -> Result<Option<f64>> {
     let allowance = budget.relative_allowance();
     let c = table.channels().len();
@@ -760,10 +776,25 @@ fn raised_curve(
     if k < RAISE_AT_LEAST {
         return Ok(None);
     }
-    let cells = est.cells();
-    let mut at_cells = vec![0f32; cells.len() * c];
-    spec.decode_cells(payload, &Layout::of(table), cells, &mut at_cells)?;
-    Ok((est.dark_tail_share(&at_cells, allowance) >= DARK_TAIL_AT_LEAST).then_some(k))
+    // Decoded into the rate control's decode buffer when it has one (a table-sized array
+    // beside it was the peak of `compress --max-error`: 147 MB for a MERL-grid table), else
+    // at the estimator's cells, as its candidates are.
+    let share = if decoded.is_empty() {
+        let cells = est.cells();
+        let mut at_cells = vec![0f32; cells.len() * c];
+        spec.decode_cells(payload, &Layout::of(table), cells, &mut at_cells)?;
+        est.dark_tail_share(&at_cells, allowance)
+    } else {
+        crate::memory::release_free_memory();
+        spec.decode_into_with(
+            payload,
+            &Layout::of(table),
+            decoded,
+            &mut DecodeScratch::lean(),
+        )?;
+        est.dark_tail_share_of_table(decoded, allowance)
+    };
+    Ok((share >= DARK_TAIL_AT_LEAST).then_some(k))
 }
 
 /// Above this many cells (a plane of 64 MiB in f64) the rate control's planes are made and
@@ -778,9 +809,10 @@ fn transform_and_coefficients(
     table: &Table,
     eps: &[f64],
     has_negative: bool,
+    hold_samples: bool,
     progress: Progress,
 ) -> (Transform, Vec<Vec<f32>>, f64) {
-    let transform = curve_transform(table, eps, has_negative, progress);
+    let transform = curve_transform(table, eps, has_negative, hold_samples, progress);
     progress("forward DCT");
     let c = table.channels().len();
     let dims = table.grid().shape();
@@ -837,7 +869,7 @@ fn transform_and_coefficients_in_samples(
     progress: Progress,
 ) -> (Transform, Vec<Vec<f32>>, f64) {
     debug_assert!(plane_in_samples(table));
-    let transform = curve_transform(table, eps, has_negative, progress);
+    let transform = curve_transform(table, eps, has_negative, true, progress);
     progress("forward DCT");
     let dims = table.grid().shape();
     let samples = table.lend_samples();
@@ -893,11 +925,13 @@ fn describe_eps(eps: &[f64], epsilon: f64) -> String {
     }
 }
 
-/// The curve (and colour) transform with curve ε `eps` per channel.
+/// The curve (and colour) transform with curve ε `eps` per channel; the colour transform's
+/// samples held while it is made when `hold_samples` ([`transform_with_curve_held`]).
 fn curve_transform(
     table: &Table,
     eps: &[f64],
     has_negative: bool,
+    hold_samples: bool,
     progress: Progress,
 ) -> Transform {
     progress("transforming (log curve, colour)");
@@ -909,7 +943,7 @@ fn curve_transform(
     } else {
         Curve::Log { eps: eps.to_vec() }
     };
-    let transform = transform_with_curve(table, curve, true, None);
+    let transform = transform_with_curve_held(table, curve, true, None, hold_samples);
     // The colour transform's samples (every valid value in f64: 27 MB on the MERL grid) and
     // the estimator's construction are freed: handed back before the DCT's planes.
     crate::memory::release_free_memory();
@@ -1058,7 +1092,15 @@ impl Control<'_> {
             }
         }
         if let (Some(effort), Some(b)) = (self.probe_raise, &best)
-            && let Some(k) = raised_curve(self.table, self.est, self.budget, effort, &b.0, &b.1)?
+            && let Some(k) = raised_curve(
+                self.table,
+                self.est,
+                self.budget,
+                effort,
+                &b.0,
+                &b.1,
+                self.decoded,
+            )?
         {
             // The raised curve is rate-controlled next and its refined fill made there: where
             // it is tried it wins by far (docs/compression.md), so this curve's refinement
@@ -1487,7 +1529,8 @@ mod tests {
         let g = parse_grid_spec("halfdiff3:12x10x16").unwrap();
         let t = tabulate(&m, &g, &Default::default()).unwrap();
         assert!(t.valid().iter().any(|v| !v), "the grid has cells to fill");
-        let tr = transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
+        let tr =
+            crate::codec::transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
         assert!(
             tr.colour.is_some(),
             "the colour transform mixes the channels"
@@ -1517,7 +1560,8 @@ mod tests {
         let m = Model::parse("ggx:alpha=0.25,fresnel=au").unwrap();
         let g = parse_grid_spec("halfdiff3:12x10x16").unwrap();
         let t = tabulate(&m, &g, &Default::default()).unwrap();
-        let tr = transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
+        let tr =
+            crate::codec::transform_with_curve(&t, Curve::Log { eps: vec![1e-3; 3] }, true, None);
         let dims = g.shape();
         let planes = crate::codec::filled_planes(&t, &tr);
         let coefs: Vec<Vec<f32>> = planes
