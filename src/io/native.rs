@@ -349,6 +349,41 @@ fn parse_header(head: &[u8], path: &Path) -> Result<Header> {
 }
 
 /// Decodes a native file.
+/// `n` little-endian f64 values from the zstd frame `z`, decoded in blocks straight into
+/// the values (the decompressed bytes were a second array of the values' size: 35 MB for a
+/// MERL-grid table, at the peak of a `compress --max-error` that reads its input again).
+/// `Err(Ok(bytes))` when the frame holds another number of bytes (at most `8n + 1` read),
+/// `Err(Err(e))` when it does not decode.
+fn decompress_f64(z: &[u8], n: usize) -> std::result::Result<Vec<f64>, std::io::Result<usize>> {
+    use std::io::Read;
+    let mut dec = zstd::stream::read::Decoder::new(z).map_err(Err)?;
+    let mut out = Vec::with_capacity(n);
+    let mut block = vec![0u8; 1 << 16];
+    let mut have = 0usize;
+    while out.len() < n {
+        let want = ((n - out.len()) * 8).min(block.len());
+        let got = dec.read(&mut block[have..want]).map_err(Err)?;
+        if got == 0 {
+            return Err(Ok(out.len() * 8 + have));
+        }
+        have += got;
+        let whole = have / 8 * 8;
+        out.extend(
+            block[..whole]
+                .chunks_exact(8)
+                .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))),
+        );
+        block.copy_within(whole..have, 0);
+        have -= whole;
+    }
+    // Nothing may follow the values.
+    match dec.read(&mut block[..1]) {
+        Ok(0) => Ok(out),
+        Ok(_) => Err(Ok(n * 8 + 1)),
+        Err(e) => Err(Err(e)),
+    }
+}
+
 pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     let secs = sections(bytes, path)?;
     let h = parse_header(&header_json(&secs, path)?, path)?;
@@ -442,18 +477,15 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
             let want = values
                 .checked_mul(8)
                 .ok_or_else(|| Error::invalid_file(path, "table size overflows"))?;
-            let raw = zstd::bulk::decompress(z, want)
-                .map_err(|e| Error::invalid_file(path, format!("F64X section: {e}")))?;
-            if raw.len() != want {
-                return Err(Error::invalid_file(
+            let raw = decompress_f64(z, values).map_err(|got| {
+                Error::invalid_file(
                     path,
-                    format!("F64X section holds {} bytes, expected {want}", raw.len()),
-                ));
-            }
-            let raw = raw
-                .chunks_exact(8)
-                .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
-                .collect();
+                    match got {
+                        Ok(n) => format!("F64X section holds {n} bytes, expected {want}"),
+                        Err(e) => format!("F64X section: {e}"),
+                    },
+                )
+            })?;
             table
                 .with_exact(ExactValues { scale, raw })
                 .map_err(in_file)
@@ -491,6 +523,31 @@ mod tests {
             valid,
         )
         .unwrap()
+    }
+
+    #[test]
+    fn the_exact_values_decode_in_blocks_and_refuse_another_length() {
+        // More values than one block holds (8192 f64), and an odd tail.
+        let values: Vec<f64> = (0..20_001).map(|i| (i as f64).sqrt() * -1.5e-7).collect();
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let z = zstd::bulk::compress(&bytes, 3).unwrap();
+        let back = decompress_f64(&z, values.len()).unwrap();
+        assert!(
+            back.iter()
+                .zip(&values)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
+        assert_eq!(back.len(), values.len());
+        // A frame of fewer values, of more, and no frame at all.
+        assert!(matches!(
+            decompress_f64(&z, values.len() + 1),
+            Err(Ok(160_008))
+        ));
+        assert!(matches!(
+            decompress_f64(&z, values.len() - 1),
+            Err(Ok(160_001))
+        ));
+        assert!(matches!(decompress_f64(b"not zstd", 4), Err(Err(_))));
     }
 
     #[test]
