@@ -609,10 +609,20 @@ fn encode(
             raised = true;
             if let Some((k, step)) = raise_found {
                 let first = *curve_variants.last().expect("a curve runs a variant");
+                // The raised curve's file is refined once at its step whatever the effort's
+                // last variant did (`max` runs its other curves unrefined): unrefined, its
+                // rate control stopped at the first accepted step and brass at `--effort
+                // max` made 21,787 B against the default's 19,322 B.
+                let raised_variant = Variant {
+                    raise: k,
+                    refine: 0,
+                    refine_once: DEFAULT_REFINE_ONCE,
+                    ..first
+                };
                 curves.push(CurveRun {
                     scale: None,
                     eps: eps.iter().map(|e| e * k).collect(),
-                    variants: vec![Variant { raise: k, ..first }],
+                    variants: vec![raised_variant],
                     resume: None,
                 });
                 raise_from = Some(step);
