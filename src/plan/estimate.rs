@@ -705,6 +705,13 @@ impl ErrorEstimator {
         self.measure_by(|s, g| s.apply(data, g))
     }
 
+    /// The estimation pairs in the core (cos θi ≥ 0.1 and cos θo ≥ 0.1), by index.
+    fn core_pairs(&self) -> Vec<usize> {
+        (0..self.pairs.count())
+            .filter(|&i| in_core_cos(self.pairs.cos_i[i], self.pairs.cos_o[i]))
+            .collect()
+    }
+
     /// The largest factor K (on a ladder of √2 steps, at most [`RAISE_MAX`]) by which the
     /// curve's ε per channel `eps` may be multiplied while a percentile bound with
     /// `allowance` (0.01 for p99) grows by at most `growth` for the same error in the curve's
@@ -724,9 +731,7 @@ impl ErrorEstimator {
         }
         // A depends on f/ε alone: the core's values as a histogram of x = f/ε in bins of
         // ln x a tenth wide (x < 1e-6 counted as 0, x > 1e9 as 1e9).
-        let core: Vec<usize> = (0..self.pairs.count())
-            .filter(|&i| in_core_cos(self.pairs.cos_i[i], self.pairs.cos_o[i]))
-            .collect();
+        let core = self.core_pairs();
         if core.len() * c < 100 {
             return 1.0;
         }
@@ -820,9 +825,7 @@ impl ErrorEstimator {
         let mut g = vec![0.0; self.pairs.count() * c];
         apply(&mut g);
         // Core values: (f relative to its channel's core median, relative error).
-        let core: Vec<usize> = (0..self.pairs.count())
-            .filter(|&i| in_core_cos(self.pairs.cos_i[i], self.pairs.cos_o[i]))
-            .collect();
+        let core = self.core_pairs();
         if core.len() * c < 100 {
             return 0.0;
         }

@@ -454,14 +454,14 @@ fn encode(
                 eps,
                 variants,
                 resume: None,
+                start: None,
             }
         })
         .collect();
-    let mut raised = false;
-    let mut raise_found: Option<(f64, f64)> = None;
-    let mut raise_from: Option<f64> = None;
-    // The curve a raise followed and its accepted file, not refined (see below).
-    let mut before_raise: Option<(CurveRun, Candidate)> = None;
+    // The effort's curves; the last of them may decide a raise.
+    let initial = curves.len();
+    // The curve a raise followed, its accepted file (not refined) and the raise (see below).
+    let mut before_raise: Option<(CurveRun, Candidate, Raise)> = None;
     let mut next = 0;
     while next < curves.len() {
         let CurveRun {
@@ -469,6 +469,7 @@ fn encode(
             eps,
             variants: curve_variants,
             resume,
+            start,
         } = curves[next].clone();
         next += 1;
         if next > 1 {
@@ -557,29 +558,28 @@ fn encode(
                 decoded: &mut decoded,
                 trials: &mut trials,
                 progress,
-                probe_raise: (!raised && next == curves.len() && Some(v) == curve_variants.last())
+                probe_raise: (next == initial && Some(v) == curve_variants.last())
                     .then_some(effort),
                 raise: None,
-                start: (v.raise != 1.0).then_some(raise_from).flatten(),
+                start,
             };
             let found = match &resume {
                 // The curve before a raise again: its accepted file refined after all.
                 Some(b) => ctl.refined_final(b.clone()).map(Some),
                 None => ctl.run(effort.iterations()),
             };
-            if let Some(r) = ctl.raise {
-                raise_found = Some(r);
-                if let Ok(Some(b)) = &found {
-                    before_raise = Some((
-                        CurveRun {
-                            scale,
-                            eps: eps.clone(),
-                            variants: vec![*v],
-                            resume: None,
-                        },
-                        b.clone(),
-                    ));
-                }
+            if let (Some(raise), Ok(Some(b))) = (ctl.raise, &found) {
+                before_raise = Some((
+                    CurveRun {
+                        scale,
+                        eps: eps.clone(),
+                        variants: vec![*v],
+                        resume: None,
+                        start: None,
+                    },
+                    b.clone(),
+                    raise,
+                ));
             }
             let found = match found {
                 Ok(f) => f,
@@ -605,9 +605,8 @@ fn encode(
                 t.elapsed().as_secs_f64(),
             ));
         }
-        if next == curves.len() && !raised {
-            raised = true;
-            if let Some((k, step)) = raise_found {
+        if next == initial {
+            if let Some((_, _, Raise { factor: k, step })) = before_raise {
                 let first = *curve_variants.last().expect("a curve runs a variant");
                 // The raised curve's file is refined once at its step whatever the effort's
                 // last variant did (`max` runs its other curves unrefined): unrefined, its
@@ -624,11 +623,11 @@ fn encode(
                     eps: eps.iter().map(|e| e * k).collect(),
                     variants: vec![raised_variant],
                     resume: None,
+                    start: Some(step),
                 });
-                raise_from = Some(step);
             }
         } else if next == curves.len()
-            && let Some((run, accepted)) = before_raise.take()
+            && let Some((run, accepted, _)) = before_raise.take()
             && best
                 .as_ref()
                 .is_some_and(|b| b.1.len() as f64 > RAISE_WON_BELOW * accepted.1.len() as f64)
@@ -714,6 +713,16 @@ struct CurveRun {
     eps: Vec<f64>,
     variants: Vec<Variant>,
     resume: Option<Candidate>,
+    /// The first candidate's step ([`Control::start`]).
+    start: Option<f64>,
+}
+
+/// A raise a rate control decided ([`raised_curve`]): the factor of ε and the step its
+/// curve accepted, where the raised curve starts.
+#[derive(Clone, Copy)]
+struct Raise {
+    factor: f64,
+    step: f64,
 }
 
 /// An accepted file: its spec, payload and error estimate.
@@ -751,9 +760,9 @@ const DARK_TAIL_AT_LEAST: f64 = 8.0;
 /// its pairs at the dark end as the values), the factor as the largest whose amplification
 /// of the errors below the new ε grows the bound by at most [`RAISE_GROWTH`] (and at least
 /// [`RAISE_AT_LEAST`]). The raised curve is rate-controlled like the first and the smaller
-/// file kept. The first curve's refined fill is left out when a raise follows (where the
-/// raise is tried it won by 3–50% on the NBRDF fits, the refinement a few percent), so a
-/// wrong guess costs that refinement and time.
+/// file kept. The first curve's refined fill is left out when a raise follows, and made
+/// after all when the raised file does not win by more than it could ([`RAISE_WON_BELOW`]),
+/// so a wrong guess costs time, not bytes.
 ///
 /// Only at the default and max efforts, for a percentile bound, on grids whose rate
 /// control holds f64 planes (a second transform of a 64⁴ table costs seconds), and for
@@ -979,8 +988,8 @@ struct Control<'a> {
     /// The effort when this run decides whether a raised curve follows ([`raised_curve`],
     /// from its accepted file, before its refined fill).
     probe_raise: Option<Effort>,
-    /// The raised curve's factor and the step this run accepted, when it decided one.
-    raise: Option<(f64, f64)>,
+    /// The raise this run decided, if any.
+    raise: Option<Raise>,
     /// The first candidate's step (a raised curve starts from the step the first curve
     /// accepted, where its files usually meet the budget too).
     start: Option<f64>,
@@ -1119,7 +1128,7 @@ impl Control<'_> {
                 CodecSpec::DctContext { dct, .. } => dct.step[0],
                 _ => 0.0,
             };
-            self.raise = Some((k, step));
+            self.raise = Some(Raise { factor: k, step });
             return Ok(best);
         }
         match best {
