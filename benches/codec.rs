@@ -153,3 +153,33 @@ fn decode_reference(bencher: divan::Bencher, case: &'static str) {
         .counter(divan::counter::BytesCount::new(t.data().len() * 4))
         .bench(|| reference::decode(&s, divan::black_box(&p), &Layout::of(t)).unwrap());
 }
+
+/// A MERL-grid plane of smooth values with some detail (the DCT's cost does not depend on
+/// them).
+fn merl_plane() -> Vec<f64> {
+    (0..90 * 90 * 180)
+        .map(|i| ((i * 7919) % 1013) as f64 / 101.0 - 4.0)
+        .collect()
+}
+
+/// The encoder's forward DCT of one MERL-grid component plane (f64, in place, all threads):
+/// three per transform of a table, and one per refined fill of each component.
+/// `cargo bench --bench codec -- dct_plane`.
+#[divan::bench(sample_count = 15)]
+fn dct_plane_forward_f64(bencher: divan::Bencher) {
+    let dims = [90usize, 90, 180];
+    let plane = merl_plane();
+    bencher
+        .with_inputs(|| plane.clone())
+        .bench_local_values(|p| brdfpack::codec::dct::forward_owned(p, &dims));
+}
+
+/// The refined fill's inverse DCT of one MERL-grid plane held in f32 (in place, all threads).
+#[divan::bench(sample_count = 15)]
+fn dct_plane_inverse_f32(bencher: divan::Bencher) {
+    let dims = [90usize, 90, 180];
+    let plane: Vec<f32> = merl_plane().iter().map(|&v| v as f32).collect();
+    bencher
+        .with_inputs(|| plane.clone())
+        .bench_local_values(|p| brdfpack::codec::dct::inverse_owned_f32(p, &dims));
+}

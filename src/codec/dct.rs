@@ -105,8 +105,12 @@ pub fn forward_owned(mut plane: Vec<f64>, dims: &[usize]) -> Vec<f64> {
     // the encoder's peak beside the table and the coefficients; a fresh one per axis cost
     // page faults on every pass.
     for a in 0..dims.len() {
-        let mat = dct_matrix(dims[a]);
-        apply_axis_in_place(&mut plane, dims, a, &mat);
+        dct_axis_in_place(
+            &mut plane,
+            dims,
+            a,
+            &FoldedDct::new(dims[a], Direction::Forward),
+        );
     }
     plane
 }
@@ -118,8 +122,12 @@ pub fn forward_owned(mut plane: Vec<f64>, dims: &[usize]) -> Vec<f64> {
 /// measures (and what it measures is the decode of the codes these coefficients make).
 pub fn forward_owned_f32(mut plane: Vec<f32>, dims: &[usize]) -> Vec<f32> {
     for a in 0..dims.len() {
-        let mat = dct_matrix(dims[a]);
-        apply_axis_in_place(&mut plane, dims, a, &mat);
+        dct_axis_in_place(
+            &mut plane,
+            dims,
+            a,
+            &FoldedDct::new(dims[a], Direction::Forward),
+        );
     }
     plane
 }
@@ -128,15 +136,12 @@ pub fn forward_owned_f32(mut plane: Vec<f32>, dims: &[usize]) -> Vec<f32> {
 /// DCT's transpose along each axis (each pass rounded to f32 once, as the forward ones are).
 pub fn inverse_owned_f32(mut coef: Vec<f32>, dims: &[usize]) -> Vec<f32> {
     for a in 0..dims.len() {
-        let n = dims[a];
-        let m = dct_matrix(n);
-        let mut t = vec![0.0; n * n];
-        for i in 0..n {
-            for j in 0..n {
-                t[i * n + j] = m[j * n + i];
-            }
-        }
-        apply_axis_in_place(&mut coef, dims, a, &t);
+        dct_axis_in_place(
+            &mut coef,
+            dims,
+            a,
+            &FoldedDct::new(dims[a], Direction::Inverse),
+        );
     }
     coef
 }
@@ -170,33 +175,166 @@ impl PlaneValue for f32 {
     }
 }
 
-/// [`apply_axis_f64`] of a square matrix (a forward transform) in place, with the same bits
-/// for an f64 plane: each worker copies the lines or the tile of columns it transforms into
+/// Which way a [`FoldedDct`] goes: the DCT-II of [`dct_matrix`], or its transpose (DCT-III).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Direction {
+    Forward,
+    Inverse,
+}
+
+/// The orthonormal DCT of length n by its even/odd symmetry, C[k][n−1−j] = (−1)ᵏ C[k][j]: the
+/// even rows act on the sums x_j + x_{n−1−j}, the odd rows on the differences (and the
+/// inverse the other way round), so each output costs n/2 products instead of n. The
+/// encoder's forward DCTs and the refined fill's inverse ones spent a fifth of a pack there.
+pub(crate) struct FoldedDct {
+    n: usize,
+    direction: Direction,
+    /// C[2i][j] for i < ⌈n/2⌉, j < ⌈n/2⌉ (forward: row-major by i; inverse: by j).
+    even: Vec<f64>,
+    /// C[2i+1][j] for i < ⌊n/2⌋, j < ⌊n/2⌋ (forward: row-major by i; inverse: by j).
+    odd: Vec<f64>,
+}
+
+impl FoldedDct {
+    pub(crate) fn new(n: usize, direction: Direction) -> FoldedDct {
+        let (ne, no) = (n.div_ceil(2), n / 2);
+        let (mut even, mut odd) = (vec![0.0; ne * ne], vec![0.0; no * no]);
+        for i in 0..ne {
+            for j in 0..ne {
+                let c = dct_entry(n, 2 * i, j);
+                match direction {
+                    Direction::Forward => even[i * ne + j] = c,
+                    Direction::Inverse => even[j * ne + i] = c,
+                }
+            }
+        }
+        for i in 0..no {
+            for j in 0..no {
+                let c = dct_entry(n, 2 * i + 1, j);
+                match direction {
+                    Direction::Forward => odd[i * no + j] = c,
+                    Direction::Inverse => odd[j * no + i] = c,
+                }
+            }
+        }
+        FoldedDct {
+            n,
+            direction,
+            even,
+            odd,
+        }
+    }
+
+    /// The transform of LANES lines side by side: `cols(j)` holds their j-th inputs,
+    /// `put(k, out)` receives their k-th outputs (each k once, in no fixed order).
+    /// `scratch` holds 2·⌈n/2⌉·LANES values.
+    #[inline(always)]
+    fn lanes<'a>(
+        &self,
+        cols: impl Fn(usize) -> &'a [f64; LANES],
+        put: &mut impl FnMut(usize, &[f64; LANES]),
+        scratch: &mut [f64],
+    ) {
+        let n = self.n;
+        let (ne, no) = (n.div_ceil(2), n / 2);
+        let (first, second) = scratch.split_at_mut(ne * LANES);
+        match self.direction {
+            Direction::Forward => {
+                // Sums in `first` (the middle input alone when n is odd), differences in
+                // `second`.
+                for (j, (sum, diff)) in first
+                    .chunks_exact_mut(LANES)
+                    .zip(second.chunks_exact_mut(LANES))
+                    .take(no)
+                    .enumerate()
+                {
+                    let (a, b) = (cols(j), cols(n - 1 - j));
+                    for l in 0..LANES {
+                        sum[l] = a[l] + b[l];
+                        diff[l] = a[l] - b[l];
+                    }
+                }
+                if ne > no {
+                    first[no * LANES..ne * LANES].copy_from_slice(cols(no));
+                }
+                let (sums, diffs) = (&*first, &*second);
+                row_blocks(&self.even, ne, ne, |j| lane(sums, j), &mut |i, acc| {
+                    put(2 * i, acc)
+                });
+                row_blocks(&self.odd, no, no, |j| lane(diffs, j), &mut |i, acc| {
+                    put(2 * i + 1, acc)
+                });
+            }
+            Direction::Inverse => {
+                // The even coefficients' part of x_j in `first`; x_j and x_{n−1−j} are its sum
+                // and difference with the odd coefficients' part.
+                row_blocks(&self.even, ne, ne, |i| cols(2 * i), &mut |j, acc| {
+                    first[j * LANES..(j + 1) * LANES].copy_from_slice(acc)
+                });
+                let evens = &*first;
+                row_blocks(&self.odd, no, no, |i| cols(2 * i + 1), &mut |j, acc| {
+                    let e = lane(evens, j);
+                    let (mut lo, mut hi) = ([0.0; LANES], [0.0; LANES]);
+                    for l in 0..LANES {
+                        lo[l] = e[l] + acc[l];
+                        hi[l] = e[l] - acc[l];
+                    }
+                    put(j, &lo);
+                    put(n - 1 - j, &hi);
+                });
+                if ne > no {
+                    put(no, lane(evens, no));
+                }
+            }
+        }
+    }
+}
+
+/// Inputs j of the LANES lines held side by side in `buf`.
+#[inline(always)]
+fn lane(buf: &[f64], j: usize) -> &[f64; LANES] {
+    buf[j * LANES..(j + 1) * LANES]
+        .try_into()
+        .expect("LANES wide")
+}
+
+/// One axis of a plane transformed by `dct` in place, in parallel, with the same bits for any
+/// number of threads: each worker copies the lines or the tile of columns it transforms into
 /// a buffer of its own (in f64) before it writes the same elements, and no two workers touch
 /// the same ones.
-pub(crate) fn apply_axis_in_place<T: PlaneValue>(
+pub(crate) fn dct_axis_in_place<T: PlaneValue>(
     data: &mut [T],
     dims: &[usize],
     axis: usize,
-    mat: &[f64],
+    dct: &FoldedDct,
 ) {
     let n = dims[axis];
     let outer: usize = dims[..axis].iter().product();
     let inner: usize = dims[axis + 1..].iter().product();
     assert_eq!(data.len(), outer * n * inner);
-    assert_eq!(mat.len(), n * n);
+    assert_eq!(dct.n, n);
     if data.is_empty() {
         return;
     }
+    let scratch_len = 2 * n.div_ceil(2) * LANES;
     if inner == 1 {
-        // As in `apply_axis_f64_into`, then written back over the lines themselves.
+        // LANES lines side by side, transposed so that one load holds the j-th input of each,
+        // then written back over the lines themselves.
         data.par_chunks_mut(LANES * n).for_each_init(
-            || (vec![0.0; n * LANES], vec![0.0; n * LANES]),
-            |(t, out), dst| {
+            || {
+                (
+                    vec![0.0; n * LANES],
+                    vec![0.0; n * LANES],
+                    vec![0.0; scratch_len],
+                )
+            },
+            |(t, out, scratch), dst| {
                 let lines = transpose_lanes(dst, n, t);
-                lines_block(mat, n, n, t, lines, &mut out[..dst.len()]);
-                for (d, &v) in dst.iter_mut().zip(out.iter()) {
-                    *d = T::narrow(v);
+                folded_tile(dct, t, LANES, LANES, out, scratch);
+                for (l, line) in dst.chunks_exact_mut(n).take(lines).enumerate() {
+                    for (k, d) in line.iter_mut().enumerate() {
+                        *d = T::narrow(out[k * LANES + l]);
+                    }
                 }
             },
         );
@@ -206,35 +344,74 @@ pub(crate) fn apply_axis_in_place<T: PlaneValue>(
     let shared = SharedOut(data.as_mut_ptr());
     let len = data.len();
     (0..outer * tiles_per_block).into_par_iter().for_each_init(
-        || (vec![0.0; n * TILE], vec![0.0; n * TILE]),
-        |(src, buf), u| {
+        || {
+            (
+                vec![0.0; n * TILE],
+                vec![0.0; n * TILE],
+                vec![0.0; scratch_len],
+            )
+        },
+        |(src, buf, scratch), u| {
             let (o, x0) = (u / tiles_per_block, (u % tiles_per_block) * TILE);
             let w = TILE.min(inner - x0);
-            // The tile's columns, gathered contiguously (stride w): the kernel then sums the
-            // same products in the same order as on the strided plane.
+            // The tile's columns gathered contiguously (stride TILE, the columns past w
+            // zero): the kernel transforms LANES of them at a time.
             for j in 0..n {
                 let at = (o * n + j) * inner + x0;
                 assert!(at + w <= len);
                 // SAFETY: in bounds (asserted); tile u alone reads and writes columns
                 // x0..x0 + w of block o, so no other worker touches these elements.
                 let from = unsafe { std::slice::from_raw_parts(shared.at(at), w) };
-                for (d, &v) in src[j * w..(j + 1) * w].iter_mut().zip(from) {
+                let row = &mut src[j * TILE..(j + 1) * TILE];
+                for (d, &v) in row.iter_mut().zip(from) {
                     *d = v.widen();
                 }
+                row[w..].fill(0.0);
             }
-            let tile = &mut buf[..n * w];
-            strided_tile(mat, n, n, &src[..n * w], w, 0, tile);
+            folded_tile(dct, src, TILE, w, buf, scratch);
             for i in 0..n {
                 let at = (o * n + i) * inner + x0;
                 assert!(at + w <= len);
                 // SAFETY: as above.
                 let to = unsafe { std::slice::from_raw_parts_mut(shared.at(at), w) };
-                for (d, &v) in to.iter_mut().zip(&tile[i * w..(i + 1) * w]) {
+                for (d, &v) in to.iter_mut().zip(&buf[i * TILE..i * TILE + w]) {
                     *d = T::narrow(v);
                 }
             }
         },
     );
+}
+
+super::simd::dispatch! {
+    /// `out[k·stride + x]` = the k-th output of column x of `src` (n × stride) for x < w,
+    /// LANES columns at a time (columns from w up to the next multiple of LANES are
+    /// transformed too, and never stored by the callers).
+    fn folded_tile / folded_tile_avx2 => folded_tile_body(
+        dct: &FoldedDct, src: &[f64], stride: usize, w: usize, out: &mut [f64], scratch: &mut [f64],
+    )
+}
+
+#[inline(always)]
+fn folded_tile_body(
+    dct: &FoldedDct,
+    src: &[f64],
+    stride: usize,
+    w: usize,
+    out: &mut [f64],
+    scratch: &mut [f64],
+) {
+    let mut xs = 0;
+    while xs < w {
+        let cols = |j: usize| -> &[f64; LANES] {
+            let at = j * stride + xs;
+            src[at..at + LANES].try_into().expect("LANES wide")
+        };
+        let mut put = |k: usize, acc: &[f64; LANES]| {
+            out[k * stride + xs..k * stride + xs + LANES].copy_from_slice(acc);
+        };
+        dct.lanes(cols, &mut put, scratch);
+        xs += LANES;
+    }
 }
 
 /// Copies the ≤ LANES contiguous lines of length `n` in `block` into `t` (n × LANES), the
@@ -730,31 +907,42 @@ mod tests {
     }
 
     #[test]
-    fn the_in_place_axis_transform_has_the_two_array_bits() {
-        // Contiguous and strided axes, with column counts that are and are not multiples of
-        // the tile (32) and the register block (8), and lines fewer than LANES.
+    fn the_folded_axis_transform_is_the_matrix_product() {
+        // Contiguous and strided axes, odd and even lengths (1 and 2 included), column counts
+        // that are and are not multiples of the tile (32) and the register block (8), and
+        // lines fewer than LANES; both directions.
         for dims in [
             vec![5usize, 3, 7],
             vec![3, 70, 9],
             vec![2, 9, 33, 40],
             vec![13],
             vec![1, 1, 1],
+            vec![4, 2, 90],
         ] {
             let len: usize = dims.iter().product();
             let plane: Vec<f64> = (0..len)
                 .map(|i| ((i * 7919) % 1013) as f64 / 101.0 - 4.0)
                 .collect();
             for axis in 0..dims.len() {
-                let mat = dct_matrix(dims[axis]);
-                let two = apply_axis_f64(&plane, &dims, axis, &mat, dims[axis]);
-                let mut one = plane.clone();
-                apply_axis_in_place(&mut one, &dims, axis, &mat);
-                assert!(
-                    one.iter()
-                        .zip(&two)
-                        .all(|(a, b)| a.to_bits() == b.to_bits()),
-                    "{dims:?} axis {axis}"
-                );
+                let n = dims[axis];
+                let mat = dct_matrix(n);
+                let transposed: Vec<f64> = (0..n * n).map(|i| mat[(i % n) * n + i / n]).collect();
+                for (direction, m) in [
+                    (Direction::Forward, &mat),
+                    (Direction::Inverse, &transposed),
+                ] {
+                    let want = apply_axis_f64(&plane, &dims, axis, m, n);
+                    let mut got = plane.clone();
+                    dct_axis_in_place(&mut got, &dims, axis, &FoldedDct::new(n, direction));
+                    // Rounding only: a few ulps of the largest partial sum (|x| ≤ 4, n terms).
+                    let tol = 4.0 * n as f64 * 8.0 * f64::EPSILON;
+                    for (a, b) in got.iter().zip(&want) {
+                        assert!(
+                            (a - b).abs() <= tol,
+                            "{dims:?} axis {axis} {direction:?}: {a} {b}"
+                        );
+                    }
+                }
             }
         }
     }
@@ -770,10 +958,10 @@ mod tests {
             let mut f32s = plane.clone();
             let mut f64s: Vec<f64> = plane.iter().map(|&v| v as f64).collect();
             for axis in 0..dims.len() {
-                let mat = dct_matrix(dims[axis]);
-                let want = apply_axis_f64(&f64s, &dims, axis, &mat, dims[axis]);
-                apply_axis_in_place(&mut f32s, &dims, axis, &mat);
-                for (a, b) in f32s.iter().zip(&want) {
+                let dct = FoldedDct::new(dims[axis], Direction::Forward);
+                dct_axis_in_place(&mut f64s, &dims, axis, &dct);
+                dct_axis_in_place(&mut f32s, &dims, axis, &dct);
+                for (a, b) in f32s.iter().zip(&f64s) {
                     assert_eq!(a.to_bits(), (*b as f32).to_bits(), "{dims:?} axis {axis}");
                 }
                 f64s = f32s.iter().map(|&v| v as f64).collect();
