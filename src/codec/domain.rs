@@ -205,23 +205,36 @@ mod tests {
         fill_invalid(&mut planes, &dims, &valid, &[0, 1, 2]);
         let plain = dct::forward_owned_f32(planes.pop().unwrap(), &dims);
         let (step, deadzone) = (0.02, 0.75);
-        let refined =
-            crate::codec::refine_coefficients_f32(plain.clone(), &dims, &valid, step, deadzone, 2);
-        let back = dct::inverse_owned_f32(refined.clone(), &dims);
-        for f in 0..n {
-            if valid[f] {
-                assert!((back[f] - plane[f]).abs() < 1e-4, "cell {f}");
-            }
-        }
         let bytes = |c: &[f32]| {
             coefcode::encode(&[coefcode::quantize_deadzone(c, &dims, step, deadzone)]).len()
         };
-        assert!(
-            bytes(&refined) < bytes(&plain),
-            "{} vs {}",
-            bytes(&refined),
-            bytes(&plain)
-        );
+        // The plain passes and the relaxed ones the rate control makes.
+        for relaxation in [1.0, crate::codec::FILL_RELAXATION] {
+            let refined = crate::codec::refine_coefficients_f32(
+                plain.clone(),
+                &dims,
+                &valid,
+                step,
+                deadzone,
+                2,
+                relaxation,
+            );
+            let back = dct::inverse_owned_f32(refined.clone(), &dims);
+            for f in 0..n {
+                if valid[f] {
+                    assert!(
+                        (back[f] - plane[f]).abs() < 1e-4,
+                        "λ {relaxation}, cell {f}"
+                    );
+                }
+            }
+            assert!(
+                bytes(&refined) < bytes(&plain),
+                "λ {relaxation}: {} vs {}",
+                bytes(&refined),
+                bytes(&plain)
+            );
+        }
     }
 
     #[test]

@@ -224,12 +224,23 @@ pub fn dct_coefficients_for(
     Ok(planes.iter().map(|p| dct::forward(p, &dims)).collect())
 }
 
+/// The relaxation the rate control's refined fill makes its pass with
+/// ([`refine_coefficients_f32`]): each invalid cell moves this share of the way from its
+/// value to what the quantized coefficients decode it to. A relaxed alternating projection
+/// (λ in (0, 2); Youla & Webb 1982) goes further per pass than the plain one (λ = 1): on 25
+/// NBRDF fits of MERL materials at both budgets, λ = 1.5 made production files a median 0.943
+/// of λ = 1's (0.906–1.002; black-phenolic 29,798 → 27,685 B) and preview files 1.000
+/// (0.91–1.04), about what a second plain pass gives (0.947) without its cost; λ = 1.75 gained
+/// no more (0.942) and spread wider.
+pub const FILL_RELAXATION: f32 = 1.5;
+
 /// `iterations` passes of the refined fill ([`Domain::FillRefined`]) made on the f32 DCT
 /// coefficients `coef` of one plane filled by [`domain::fill_invalid`], in their own memory
 /// and one plane at a time (the f64 planes of every component, the refined fill's cost
 /// before, added 70 MB to a MERL-grid encode): each pass decodes the coefficients quantized
-/// at `step` with `deadzone`, puts the decode's values in the invalid cells of the plane
-/// (the plane again by the exact inverse transform), and transforms it again.
+/// at `step` with `deadzone`, moves the invalid cells of the plane (the plane again by the
+/// exact inverse transform) `relaxation` of the way to the decode's values (1: to them;
+/// [`FILL_RELAXATION`]), and transforms it again.
 pub fn refine_coefficients_f32(
     mut coef: Vec<f32>,
     dims: &[usize],
@@ -237,6 +248,7 @@ pub fn refine_coefficients_f32(
     step: f64,
     deadzone: f64,
     iterations: u32,
+    relaxation: f32,
 ) -> Vec<f32> {
     if valid.iter().all(|&v| v) {
         return coef;
@@ -250,7 +262,7 @@ pub fn refine_coefficients_f32(
         let mut plane = dct::inverse_owned_f32(coef, dims);
         for ((v, &ok), &x) in plane.iter_mut().zip(valid).zip(&decoded) {
             if !ok {
-                *v = x;
+                *v += relaxation * (x - *v);
             }
         }
         drop(decoded);
