@@ -762,8 +762,8 @@ const RAISE_WON_BELOW: f64 = 0.7;
 /// whose raise was tried, the two curves' shares were 0.74–0.94 and 0.83–0.94, and the rule
 /// chose the smaller file in all 13 packs). The raised curve's refined fill is a measurement
 /// of this material's: the first curve's is made only when the raised file was not the
-/// smaller before it, where it costs about a second (a transform and two or three refined
-/// encodes and decodes). When the raised file is the larger, its own refined fill is left
+/// smaller before it, where it costs the first curve's transform again and two or three
+/// refined encodes and decodes (0.5–0.7 s on the MERL grid). When the raised file is the larger, its own refined fill is left
 /// out ([`Control::refine_below`]), so a raise tried in vain costs the raised curve's
 /// transform and rate control. `--effort max` refines both whenever the raised file could
 /// lose ([`RAISE_WON_BELOW`]).
