@@ -1,6 +1,7 @@
 //! The numerics toolbox (f64 throughout), after pbrt-v4's `util/math.h`.
 
 pub mod atan;
+pub mod log;
 pub mod sobol;
 
 pub const PI: f64 = std::f64::consts::PI;
