@@ -19,6 +19,12 @@ pub struct TabulateOptions {
     /// Allow a source that is not reciprocal on `halfdiff3`, whose φd fold assumes
     /// f(wi, wo) = f(wo, wi) (stated in the table's provenance).
     pub allow_nonreciprocal: bool,
+    /// A table tabulated on its own grid keeps its holes (cells its geometry holds but its
+    /// values do not: MERL's negative markers) as invalid cells, so that the new table
+    /// evaluates as the source does; with this set they are filled with the source's
+    /// interpolation at the node instead (no explicit mask to store, at the price of a
+    /// table that differs from the source next to each hole; `pack` weighs the two).
+    pub fill_own_holes: bool,
     /// Called with (cells done, cells in all) as the generic path advances; the CLI draws a
     /// bar from it on a terminal. The library never prints.
     pub progress: Option<CellProgress>,
@@ -193,14 +199,22 @@ fn tabulate_generic(
                 if !src.in_domain(wi, wo) {
                     continue;
                 }
-                // A valid node of the source's own grid: the interpolation there is the
+                // A node of the source's own grid. Valid, the interpolation there is the
                 // sample (up to the rounding of the node's indices, which this avoids).
-                if let Some(t) = own
-                    && t.valid()[cell]
-                {
-                    vals[j * c..(j + 1) * c].copy_from_slice(&t.data()[cell * c..(cell + 1) * c]);
-                    *okj = true;
-                    continue;
+                // Invalid (a hole of a measurement, MERL's negative marker), it stays a hole
+                // unless `fill_own_holes`: its lookups interpolate the valid neighbours as
+                // the source's own do, so the table is the source exactly; filled, it holds a
+                // made-up sample that interpolates otherwise beside it.
+                if let Some(t) = own {
+                    if t.valid()[cell] {
+                        vals[j * c..(j + 1) * c]
+                            .copy_from_slice(&t.data()[cell * c..(cell + 1) * c]);
+                        *okj = true;
+                        continue;
+                    }
+                    if !opts.fill_own_holes {
+                        continue;
+                    }
                 }
                 src.eval(wi, wo, &mut buf);
                 for (k, &v) in buf.iter().enumerate() {
@@ -398,6 +412,15 @@ mod tests {
         };
         assert!(Table::behind(&src, &g).is_some());
         let again = tabulate(&src, &g, &Default::default()).unwrap();
+        let filled = tabulate(
+            &src,
+            &g,
+            &TabulateOptions {
+                fill_own_holes: true,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let mut v = [0.0; 3];
         for cell in 0..g.cells() {
             let (a, b) = (
@@ -407,11 +430,18 @@ mod tests {
             if below.contains(&cell) {
                 assert!(!again.valid()[cell], "cell {cell} below the horizon");
             } else if holes.binary_search(&cell).is_ok() {
+                // A hole stays one; filled, it holds the source's interpolation there.
+                assert!(!again.valid()[cell], "hole {cell} kept");
+                assert!(filled.valid()[cell], "hole {cell} filled");
                 g.unflatten(cell, &mut idx);
                 let (wi, wo) = g.cell_dirs(&idx);
                 t.eval_into(wi, wo, Interp::Linear, &mut v);
                 let want: Vec<f32> = v.iter().map(|&x| x as f32).collect();
-                assert_eq!(b, &want[..], "hole {cell}");
+                assert_eq!(
+                    &filled.data()[cell * c..(cell + 1) * c],
+                    &want[..],
+                    "hole {cell}"
+                );
             } else {
                 assert!(again.valid()[cell], "cell {cell}");
                 assert_eq!(

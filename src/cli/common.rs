@@ -150,6 +150,7 @@ impl SamplingArgs {
         crate::tabulate::TabulateOptions {
             allow_anisotropic: self.allow_anisotropic,
             allow_nonreciprocal: self.allow_nonreciprocal,
+            fill_own_holes: false,
             progress,
         }
     }

@@ -10,7 +10,8 @@
 //! ```
 //! Sections in order: `HEAD` (UTF-8 JSON header) or `HEAZ` (the same JSON, zstd-compressed;
 //! such files are version 1.2), `DATA` (codec payload), optionally `MASK`
-//! (zstd of the validity bitmap, LSB first, when it differs from the grid's geometric mask),
+//! (zstd of a bitmap, LSB first, of the cells whose validity differs from the grid's geometric
+//! mask; in files written before `geometric_xor`, of the validity itself),
 //! optionally `F64X` (zstd of the table's exact f64 values, little-endian, same order as the
 //! samples, when the table carries them; such files are version 1.1), and `END ` (empty)
 //! last, so a file cut at a section boundary is still detected.
@@ -56,7 +57,8 @@ pub struct Header {
     pub provenance: Provenance,
     pub codec: CodecSpec,
     /// `geometric`: validity is implied by the grid (above the horizon, within θmax);
-    /// `explicit`: a `MASK` section holds it.
+    /// `explicit`: a `MASK` section holds it; `geometric_xor`: a `MASK` section holds where it
+    /// differs from the geometric one.
     pub mask: MaskKind,
     /// Number of valid cells (a consistency check).
     pub valid_cells: usize,
@@ -66,15 +68,48 @@ pub struct Header {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "snake_case")]
 pub enum MaskKind {
     Geometric,
+    /// The `MASK` section holds every cell's validity (files written before
+    /// [`MaskKind::GeometricXor`]; still read).
     Explicit,
+    /// The `MASK` section holds the cells whose validity differs from the geometric mask
+    /// (the holes of a measurement): two blocks of holes on the MERL grid cost 974 B, the
+    /// whole mask, with the horizon's curve in it, 2,534 B.
+    GeometricXor,
 }
 
 /// Encodes a table into the native format's bytes.
 pub fn to_bytes(table: &Table, codec: &CodecSpec) -> Result<Vec<u8>> {
     to_bytes_with_payload(table, codec, &codec.encode(table)?)
+}
+
+/// Bytes before a section's payload: tag, length (u64) and crc32.
+const SECTION_HEADER_BYTES: usize = 4 + 8 + 4;
+
+/// The `MASK` section of a validity mask against the grid's geometric one
+/// ([`MaskKind::GeometricXor`]): one bit per cell, set where the two differ (C order, least
+/// significant bit first), zstd level 19.
+fn mask_section(valid: &[bool], geometric: &[bool]) -> Result<Vec<u8>> {
+    let mut bits = vec![0u8; valid.len().div_ceil(8)];
+    for (i, (&v, &g)) in valid.iter().zip(geometric).enumerate() {
+        if v != g {
+            bits[i / 8] |= 1 << (i % 8);
+        }
+    }
+    zstd::bulk::compress(&bits, 19)
+        .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))
+}
+
+/// The bytes the `MASK` section of `table`'s file takes (section header included), 0 when its
+/// mask is the grid's geometric one and no section is written.
+pub fn mask_section_bytes(table: &Table) -> Result<usize> {
+    let geometric = table.grid().geometric_mask();
+    if geometric == table.valid() {
+        return Ok(0);
+    }
+    Ok(SECTION_HEADER_BYTES + mask_section(table.valid(), &geometric)?.len())
 }
 
 /// The native file of `table` with its `DATA` section already encoded by `codec` (the
@@ -88,7 +123,7 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: &[u8]) -> R
     let mask = if geometric == table.valid() {
         MaskKind::Geometric
     } else {
-        MaskKind::Explicit
+        MaskKind::GeometricXor
     };
     let header = Header {
         format: "brdfpack-table".into(),
@@ -104,16 +139,8 @@ pub fn to_bytes_with_payload(table: &Table, codec: &CodecSpec, data: &[u8]) -> R
         .map_err(|e| Error::Failure(format!("header serialization: {e}")))?;
     let mut sections: Vec<([u8; 4], Cow<[u8]>)> =
         vec![head_section(head)?, (*b"DATA", data.into())];
-    if mask == MaskKind::Explicit {
-        let mut bits = vec![0u8; table.valid().len().div_ceil(8)];
-        for (i, &v) in table.valid().iter().enumerate() {
-            if v {
-                bits[i / 8] |= 1 << (i % 8);
-            }
-        }
-        let z = zstd::bulk::compress(&bits, 19)
-            .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
-        sections.push((*b"MASK", z.into()));
+    if mask == MaskKind::GeometricXor {
+        sections.push((*b"MASK", mask_section(table.valid(), &geometric)?.into()));
     }
     let minor = match exact {
         Some(e) => {
@@ -421,7 +448,7 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     .map_err(in_file)?;
     let valid = match h.mask {
         MaskKind::Geometric => grid.geometric_mask(),
-        MaskKind::Explicit => {
+        MaskKind::Explicit | MaskKind::GeometricXor => {
             let z = secs
                 .iter()
                 .find(|(t, _)| t == b"MASK")
@@ -444,9 +471,13 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
                     ),
                 ));
             }
-            (0..cells)
-                .map(|i| bits[i / 8] >> (i % 8) & 1 == 1)
-                .collect()
+            let set = |i: usize| bits[i / 8] >> (i % 8) & 1 == 1;
+            if h.mask == MaskKind::GeometricXor {
+                let geometric = grid.geometric_mask();
+                (0..cells).map(|i| set(i) != geometric[i]).collect()
+            } else {
+                (0..cells).map(set).collect()
+            }
         }
     };
     let valid_count = valid.iter().filter(|&&v| v).count();
@@ -575,6 +606,64 @@ mod tests {
             let e = from_bytes(&bytes[..n], Path::new("x")).unwrap_err();
             assert_eq!(e.exit_code(), 2, "{e}");
         }
+    }
+
+    #[test]
+    fn masks_of_holes_cost_what_the_holes_do_and_whole_masks_still_read() {
+        // Two blocks of holes on the MERL grid: the mask against the geometric one holds only
+        // the blocks' edges (974 B); the whole mask holds the horizon's curve too (2,534 B).
+        let g = parse_grid_spec("merl").unwrap();
+        let mut valid = g.geometric_mask();
+        let mut idx = [0usize; 3];
+        for (cell, v) in valid.iter_mut().enumerate() {
+            g.unflatten(cell, &mut idx);
+            if (idx[1] >= 80 && (60..120).contains(&idx[2])) || (idx[0] >= 70 && idx[2] < 20) {
+                *v = false;
+            }
+        }
+        let n = g.cells();
+        let t = Table::new(
+            g.clone(),
+            Channels::default_for(1),
+            Provenance {
+                source: "test".into(),
+                tool: "t".into(),
+                notes: vec![],
+            },
+            vec![0.25; n],
+            valid,
+        )
+        .unwrap();
+        let bytes = mask_section_bytes(&t).unwrap();
+        let whole = SECTION_HEADER_BYTES + mask_section(t.valid(), &vec![false; n]).unwrap().len();
+        assert!(2 * bytes < whole, "{bytes} B against {whole} B");
+        let file = to_bytes(&t, &CodecSpec::ZstdF32 { level: 3 }).unwrap();
+        assert_eq!(from_bytes(&file, Path::new("x")).unwrap(), t);
+        // The form written before `geometric_xor`: every cell's bit, `"mask": "explicit"`.
+        let old = {
+            let header = Header {
+                format: "brdfpack-table".into(),
+                grid: t.grid().desc(),
+                channels: t.channels().clone(),
+                provenance: t.provenance().clone(),
+                codec: CodecSpec::ZstdF32 { level: 3 },
+                mask: MaskKind::Explicit,
+                valid_cells: t.valid_count(),
+                exact: None,
+            };
+            let data = CodecSpec::ZstdF32 { level: 3 }.encode(&t).unwrap();
+            let sections: Vec<([u8; 4], Cow<[u8]>)> = vec![
+                (*b"HEAD", serde_json::to_vec(&header).unwrap().into()),
+                (*b"DATA", data.into()),
+                (
+                    *b"MASK",
+                    mask_section(t.valid(), &vec![false; n]).unwrap().into(),
+                ),
+                (*b"END ", Cow::Borrowed(&[])),
+            ];
+            container(VERSION_MINOR, &sections)
+        };
+        assert_eq!(from_bytes(&old, Path::new("old")).unwrap(), t);
     }
 
     #[test]

@@ -424,6 +424,7 @@ fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> 
     let options = TabulateOptions {
         allow_anisotropic: m.allow_anisotropic || scene.isotropic == Some(true),
         allow_nonreciprocal: m.allow_nonreciprocal,
+        fill_own_holes: false,
         progress: None,
     };
     let grid = match &m.grid {

@@ -144,9 +144,164 @@ struct Tabulated {
     tabulate_s: f64,
 }
 
+/// A file whose explicit mask is at least this share of it has its source planned again with
+/// the holes filled ([`plan`]).
+const MASK_SHARE_TRY_FILLED: f64 = 0.25;
+
 /// Plans the smallest file meeting the budget (module doc). Fails with
 /// [`Error::Failure`] (exit 1) naming the grids' own errors when no grid can meet it.
+///
+/// A table source on its own grid keeps its holes (cells its geometry holds and its values do
+/// not: MERL's negative markers) as invalid cells: the table is then the source exactly, and
+/// the codec fills the holes as it likes. The price is the file's explicit mask, which
+/// scattered holes make large (0.5% of a MERL table's cells at random: ~13 KB). Filling them
+/// saves at most that mask (the filled table has the same cells to code, and beside each hole
+/// its own error, which leaves the codec less of the budget), so when the mask is at least
+/// [`MASK_SHARE_TRY_FILLED`] of the file the source is planned again with its holes filled,
+/// on the same grid, and the smaller file is kept.
 pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Result<Planned> {
+    let filled = |options: &TabulateOptions| TabulateOptions {
+        fill_own_holes: true,
+        ..options.clone()
+    };
+    let again = match &input {
+        PackInput::Source {
+            source, options, ..
+        } if !options.fill_own_holes => Some(PackInput::Source {
+            source: *source,
+            grid: None,
+            options: filled(options),
+        }),
+        PackInput::Reopened { open, options, .. } if !options.fill_own_holes => {
+            Some(PackInput::Reopened {
+                open: *open,
+                grid: None,
+                options: filled(options),
+            })
+        }
+        _ => None,
+    };
+    let first = plan_once(input, settings, progress)?;
+    let Some(mut again) = again else {
+        return Ok(first);
+    };
+    let mask = crate::io::native::mask_section_bytes(&first.table)?;
+    let first_bytes = first.encoded.payload.len() + mask;
+    // A lossless file carries the exact values, which the first file would have to keep
+    // through the second plan; its mask is a small share of it anyway.
+    if mask == 0
+        || (mask as f64) < MASK_SHARE_TRY_FILLED * first_bytes as f64
+        || first.encoded.spec.is_lossless()
+    {
+        return Ok(first);
+    }
+    // The first file is kept by its payload and its table's description from here on: its
+    // samples (what the payload decodes to) and the table's caches would sit beside the
+    // source opened again and the second plan's peak.
+    let Planned {
+        table,
+        grid: grid_spec,
+        encoded,
+        mut attempts,
+        mut timings,
+        estimate_samples,
+        tabulate_s,
+        encode_s,
+    } = first;
+    let grid = table.grid().clone();
+    // The mask as bits: 1.4 MB as bools on the MERL grid, beside a second plan that peaks
+    // near the memory bound.
+    let (channels, provenance, cells) = (
+        table.channels().clone(),
+        table.provenance().clone(),
+        table.valid().len(),
+    );
+    let mut valid_bits = vec![0u64; cells.div_ceil(64)];
+    for (i, _) in table.valid().iter().enumerate().filter(|(_, v)| **v) {
+        valid_bits[i / 64] |= 1 << (i % 64);
+    }
+    drop(table);
+    // What the first plan freed goes back to the kernel before the second reaches its peak.
+    crate::memory::release_free_memory();
+    // Only holes of a table on this very grid are filled; other invalid cells (beyond a
+    // θmax table's domain) stay, and a second plan would make the same file.
+    let own =
+        |s: &dyn Brdf| Table::behind(s, &grid).is_some_and(|t| t.valid() != grid.geometric_mask());
+    let fillable = match &mut again {
+        PackInput::Source {
+            source, grid: g, ..
+        } => {
+            *g = Some(grid.clone());
+            own(*source)
+        }
+        PackInput::Reopened { open, grid: g, .. } => {
+            *g = Some(grid.clone());
+            own(open()?.as_ref())
+        }
+        PackInput::Table { .. } => false,
+    };
+    let second = if fillable {
+        progress("planning again with the source's holes filled");
+        Some(plan_once(again, settings, progress))
+    } else {
+        None
+    };
+    match second {
+        Some(Ok(mut second))
+            if second.encoded.payload.len()
+                + crate::io::native::mask_section_bytes(&second.table)?
+                < first_bytes =>
+        {
+            timings.append(&mut second.timings);
+            second.timings = timings;
+            attempts.iter_mut().for_each(|a| a.chosen = false);
+            attempts.append(&mut second.attempts);
+            second.attempts = attempts;
+            Ok(second)
+        }
+        // A larger file, or a grid that the filled holes' own error puts over the budget, or
+        // holes that are not the source's: the first file, its samples decoded again.
+        second => {
+            if let Some(Ok(mut s)) = second {
+                timings.append(&mut s.timings);
+                for a in s.attempts.iter_mut() {
+                    a.chosen = false;
+                }
+                attempts.append(&mut s.attempts);
+            }
+            let valid: Vec<bool> = (0..cells)
+                .map(|i| valid_bits[i / 64] >> (i % 64) & 1 == 1)
+                .collect();
+            let values = grid.cells() * channels.len();
+            let mut samples = crate::memory::try_filled(values, 0f32, "the chosen table")?;
+            let layout = crate::codec::Layout {
+                grid: &grid,
+                valid: &valid,
+                channels: channels.len(),
+            };
+            encoded.spec.decode_into_with(
+                &encoded.payload,
+                &layout,
+                &mut samples,
+                &mut crate::codec::DecodeScratch::lean(),
+            )?;
+            let table = Table::new(grid, channels, provenance, samples, valid)?;
+            Ok(Planned {
+                table,
+                grid: grid_spec,
+                encoded,
+                attempts,
+                timings,
+                estimate_samples,
+                tabulate_s,
+                encode_s,
+            })
+        }
+    }
+}
+
+/// [`plan`] with the source tabulated as `input`'s options say.
+fn plan_once(input: PackInput, settings: &PackSettings, progress: Progress) -> Result<Planned> {
     let mut timings = Vec::new();
     let (held, grid, options, reopen) = match input {
         PackInput::Table { table, again } => return plan_table(table, again, settings, progress),
@@ -845,5 +1000,73 @@ mod tests {
                 "{bounds}"
             );
         }
+    }
+
+    #[test]
+    fn a_table_sources_holes_are_kept_or_filled_whichever_file_is_smaller() {
+        let m = Model::parse("lambert:albedo=0.1+ggx:alpha=0.2,fresnel=au").unwrap();
+        let grid = parse_grid_spec("halfdiff3:16x12x24,warp=sqrt/linear/linear").unwrap();
+        let full = tabulate(&m, &grid, &Default::default()).unwrap();
+        let settings = |bounds: &str| PackSettings {
+            budget: Budget::parse(bounds).unwrap(),
+            effort: Effort::Fast,
+            check_samples: 4096,
+            check_seed: 7,
+        };
+        let plan_with = |source: &InterpolatedTable, fill_own_holes: bool, bounds: &str| {
+            plan(
+                PackInput::Source {
+                    source,
+                    grid: Some(grid.clone()),
+                    options: TabulateOptions {
+                        fill_own_holes,
+                        ..Default::default()
+                    },
+                },
+                &settings(bounds),
+                &|_| {},
+            )
+            .unwrap()
+        };
+        let bytes = |p: &Planned| {
+            p.encoded.payload.len() + crate::io::native::mask_section_bytes(&p.table).unwrap()
+        };
+        let holed = |hole: &dyn Fn(usize, &[usize]) -> bool| {
+            let mut t = full.clone();
+            let mut idx = [0usize; 3];
+            let (_, valid) = t.buffers_mut();
+            for (cell, v) in valid.iter_mut().enumerate() {
+                grid.unflatten(cell, &mut idx);
+                if *v && hole(cell, &idx) {
+                    *v = false;
+                }
+            }
+            InterpolatedTable {
+                table: t,
+                interp: Interp::Linear,
+            }
+        };
+        // A block of holes under a tight budget (a file of kilobytes, a mask of tens of
+        // bytes): kept, so the table is the source exactly (its own error 0).
+        let block = holed(&|_, i| i[1] >= 9 && i[2] < 6);
+        let kept = plan_with(&block, false, "log_rmse=0.002,p99_rel_core=0.05");
+        assert!(kept.table.valid() == block.table.valid());
+        assert_eq!(kept.attempts.len(), 1);
+        assert_eq!(kept.attempts[0].floor.upper.log_rmse, 0.0);
+        // Scattered holes, whose mask is a large share of a small file: planned both ways,
+        // and the smaller file is the one kept.
+        let scattered = holed(&|cell, _| cell % 7 == 3);
+        let loose = "log_rmse=0.05,p99_rel_core=0.8";
+        let either = plan_with(&scattered, false, loose);
+        let filled = plan_with(&scattered, true, loose);
+        assert!(filled.table.valid() != scattered.table.valid());
+        let kept_bytes = either.attempts[0].payload_bytes.unwrap()
+            + crate::io::native::mask_section_bytes(&scattered.table).unwrap();
+        assert!(
+            either.attempts.len() == 2,
+            "{} attempts",
+            either.attempts.len()
+        );
+        assert_eq!(bytes(&either), kept_bytes.min(bytes(&filled)));
     }
 }

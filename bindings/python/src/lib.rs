@@ -571,6 +571,7 @@ fn tabulate(
         let opts = TabulateOptions {
             allow_anisotropic,
             allow_nonreciprocal,
+            fill_own_holes: false,
             progress: None,
         };
         let table = core_tabulate(brdf, &grid, &opts)?;
