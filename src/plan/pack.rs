@@ -325,7 +325,15 @@ fn plan_once(input: PackInput, settings: &PackSettings, progress: Progress) -> R
     let source = held.get();
     let (start, refine) = match grid {
         Some(g) => (g, false),
-        None => (default_grid(source)?, true),
+        None => {
+            let g = default_grid(source)?;
+            // A table on its own grid tabulates to itself (its own error 0, its holes kept):
+            // a finer grid would only re-sample its interpolation. So the grid is fixed, and
+            // a source that can be opened again is not held while the codec is chosen
+            // (a MERL file's 17.5 MB).
+            let own = Table::behind(source, &g).is_some() && !options.fill_own_holes;
+            (g, !own)
+        }
     };
     let t = Instant::now();
     progress("evaluating the source on the estimation and check sets");
