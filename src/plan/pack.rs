@@ -154,7 +154,7 @@ const MASK_SHARE_TRY_FILLED: f64 = 0.25;
 /// A table source on its own grid keeps its holes (cells its geometry holds and its values do
 /// not: MERL's negative markers) as invalid cells: the table is then the source exactly, and
 /// the codec fills the holes as it likes. The price is the file's explicit mask, which
-/// scattered holes make large (0.5% of a MERL table's cells at random: ~13 KB). Filling them
+/// scattered holes make large (0.5% of a MERL table's cells at random: ~9.5 KB). Filling them
 /// saves at most that mask (the filled table has the same cells to code, and beside each hole
 /// its own error, which leaves the codec less of the budget), so when the mask is at least
 /// [`MASK_SHARE_TRY_FILLED`] of the file the source is planned again with its holes filled,
