@@ -142,12 +142,13 @@ impl SampleSet {
         let n = valid.iter().filter(|&&v| v).count();
         let mut pairs = Vec::with_capacity(n);
         let mut weights = Vec::with_capacity(n);
+        let dirs = grid.cell_directions();
         for (f, &ok) in valid.iter().enumerate() {
             if !ok {
                 continue;
             }
             grid.unflatten(f, &mut idx[..d]);
-            let (wi, wo) = grid.cell_dirs(&idx[..d]);
+            let (wi, wo) = dirs.at(&idx[..d]);
             // A valid cell below the horizon (an extended grid's, or a measured file's value
             // there) is read by interpolation but is no pair of the BRDF's domain: both
             // sources give 0 at it.
@@ -732,9 +733,22 @@ impl Pairs<'_> {
         n.div_ceil(per)
     }
 
+    /// What a grid's cells need of its geometry ([`Pairs::chunk`]): the per-axis tables of
+    /// the cells' directions and measures, made once per check instead of per-cell
+    /// trigonometry (the same bits: `grid::dirs`' test, and a product in the same order).
+    fn geometry(&self) -> Option<CellGeometry> {
+        match self {
+            Pairs::Set(_) => None,
+            Pairs::Cells { grid, .. } => Some(CellGeometry {
+                dirs: grid.cell_directions(),
+                measure: grid.cell_measure_factors(),
+            }),
+        }
+    }
+
     /// The pairs and weights of chunk `k` of `per`, in the set's order, and for a grid's
-    /// cells their flat indices.
-    fn chunk(&self, k: usize, per: usize) -> Chunk {
+    /// cells their flat indices (`geo`: [`Pairs::geometry`]).
+    fn chunk(&self, k: usize, per: usize, geo: Option<&CellGeometry>) -> Chunk {
         match self {
             Pairs::Set(s) => {
                 let r = k * per..((k + 1) * per).min(s.pairs.len());
@@ -749,6 +763,7 @@ impl Pairs<'_> {
                 }
             }
             Pairs::Cells { grid, valid, keep } => {
+                let geo = geo.expect("Pairs::chunk: the cells' geometry");
                 let d = grid.axes().len();
                 let mut idx = [0usize; 4];
                 let mut out = Chunk {
@@ -764,12 +779,19 @@ impl Pairs<'_> {
                     .map(|(j, ok)| (k * per + j, ok))
                 {
                     grid.unflatten(f, &mut idx[..d]);
-                    let (wi, wo) = grid.cell_dirs(&idx[..d]);
+                    let (wi, wo) = geo.dirs.at(&idx[..d]);
                     // As in [`SampleSet::cells`]: a valid cell below the horizon is no pair
                     // of the BRDF's domain.
                     if wi.z > 0.0 && wo.z > 0.0 && keep(wi, wo) {
                         out.pairs.push((wi, wo));
-                        out.weights.push(grid.cell_measure(&idx[..d]));
+                        // Grid::cell_measure's product, factor by factor in the same order.
+                        out.weights.push(
+                            idx[..d]
+                                .iter()
+                                .enumerate()
+                                .map(|(a, &i)| geo.measure[a][i])
+                                .product(),
+                        );
                         out.cells.push(f);
                     }
                 }
@@ -785,6 +807,12 @@ impl Pairs<'_> {
             Pairs::Cells { grid, .. } => Table::behind(brdf, grid),
         }
     }
+}
+
+/// A grid's per-axis tables for its cells' pairs and weights ([`Pairs::geometry`]).
+struct CellGeometry {
+    dirs: crate::grid::CellDirections,
+    measure: Vec<Vec<f64>>,
 }
 
 /// One chunk of a streamed check.
@@ -826,6 +854,7 @@ fn check_pairs(
     let per = (CHUNK_VALUES / c.max(1)).max(1);
     let chunks = pairs.chunks(per);
     let (own_reference, own_candidate) = (pairs.own_table(reference), pairs.own_table(candidate));
+    let geo = pairs.geometry();
     let eval = |brdf: &dyn Brdf, own: Option<&Table>, chunk: &Chunk| {
         let mut v = vec![0.0; chunk.pairs.len() * c];
         for (j, &(wi, wo)) in chunk.pairs.iter().enumerate() {
@@ -849,7 +878,7 @@ fn check_pairs(
     for_each_chunk(
         chunks,
         |k| {
-            let chunk = pairs.chunk(k, per);
+            let chunk = pairs.chunk(k, per, geo.as_ref());
             let f = eval(reference, own_reference, &chunk);
             let core = chunk
                 .pairs
@@ -881,7 +910,7 @@ fn check_pairs(
     for_each_chunk(
         chunks,
         |k| {
-            let chunk = pairs.chunk(k, per);
+            let chunk = pairs.chunk(k, per, geo.as_ref());
             let (f, g) = (
                 eval(reference, own_reference, &chunk),
                 eval(candidate, own_candidate, &chunk),
