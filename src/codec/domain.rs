@@ -109,10 +109,10 @@ pub fn fill_invalid<T: PlaneValue>(
 }
 
 /// One bit per cell.
-struct CellBits(Vec<u64>);
+pub(crate) struct CellBits(Vec<u64>);
 
 impl CellBits {
-    fn of(valid: &[bool]) -> CellBits {
+    pub(crate) fn of(valid: &[bool]) -> CellBits {
         let mut bits = vec![0u64; valid.len().div_ceil(64)];
         for (f, _) in valid.iter().enumerate().filter(|(_, v)| **v) {
             bits[f / 64] |= 1 << (f % 64);
@@ -120,7 +120,7 @@ impl CellBits {
         CellBits(bits)
     }
     #[inline]
-    fn get(&self, f: usize) -> bool {
+    pub(crate) fn get(&self, f: usize) -> bool {
         self.0[f / 64] >> (f % 64) & 1 == 1
     }
     #[inline]

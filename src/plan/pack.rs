@@ -216,10 +216,7 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
         table.provenance().clone(),
         table.valid().len(),
     );
-    let mut valid_bits = vec![0u64; cells.div_ceil(64)];
-    for (i, _) in table.valid().iter().enumerate().filter(|(_, v)| **v) {
-        valid_bits[i / 64] |= 1 << (i % 64);
-    }
+    let valid_bits = crate::codec::domain::CellBits::of(table.valid());
     drop(table);
     // What the first plan freed goes back to the kernel before the second reaches its peak.
     crate::memory::release_free_memory();
@@ -269,21 +266,14 @@ pub fn plan(input: PackInput, settings: &PackSettings, progress: Progress) -> Re
                 }
                 attempts.append(&mut s.attempts);
             }
-            let valid: Vec<bool> = (0..cells)
-                .map(|i| valid_bits[i / 64] >> (i % 64) & 1 == 1)
-                .collect();
-            let values = grid.cells() * channels.len();
-            let mut samples = crate::memory::try_filled(values, 0f32, "the chosen table")?;
-            let layout = crate::codec::Layout {
-                grid: &grid,
-                valid: &valid,
-                channels: channels.len(),
-            };
-            encoded.spec.decode_into_with(
-                &encoded.payload,
-                &layout,
-                &mut samples,
-                &mut crate::codec::DecodeScratch::lean(),
+            let valid: Vec<bool> = (0..cells).map(|i| valid_bits.get(i)).collect();
+            let samples = decode_again(
+                &encoded,
+                &crate::codec::Layout {
+                    grid: &grid,
+                    valid: &valid,
+                    channels: channels.len(),
+                },
             )?;
             let table = Table::new(grid, channels, provenance, samples, valid)?;
             Ok(Planned {
@@ -675,16 +665,8 @@ fn plan_once(input: PackInput, settings: &PackSettings, progress: Progress) -> R
     if table.data().is_empty() && table.grid().cells() > 0 {
         // Its samples were dropped during the refinements: the chosen file's decode again,
         // as the encoder left them.
-        let values = table.grid().cells() * table.channels().len();
-        let mut samples = crate::memory::try_filled(values, 0f32, "the chosen table")?;
-        let decoded = encoded.spec.decode_into_with(
-            &encoded.payload,
-            &crate::codec::Layout::of(&table),
-            &mut samples,
-            &mut crate::codec::DecodeScratch::lean(),
-        );
+        let samples = decode_again(&encoded, &crate::codec::Layout::of(&table))?;
         table.give_back_samples(samples);
-        decoded?;
     }
     attempts[k].chosen = true;
     Ok(Planned {
@@ -697,6 +679,20 @@ fn plan_once(input: PackInput, settings: &PackSettings, progress: Progress) -> R
         tabulate_s,
         encode_s,
     })
+}
+
+/// What a file kept by its payload alone (while other grids or a second plan were made)
+/// decodes to on `layout`: the samples the encoder leaves in a planned table.
+fn decode_again(encoded: &Encoded, layout: &crate::codec::Layout) -> Result<Vec<f32>> {
+    let values = layout.grid.cells() * layout.channels;
+    let mut samples = crate::memory::try_filled(values, 0f32, "the chosen table")?;
+    encoded.spec.decode_into_with(
+        &encoded.payload,
+        layout,
+        &mut samples,
+        &mut crate::codec::DecodeScratch::lean(),
+    )?;
+    Ok(samples)
 }
 
 /// `f` of the source: the one held, or the [`PackInput::Reopened`] one opened again.
