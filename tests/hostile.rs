@@ -1494,3 +1494,50 @@ fn a_theta_max_table_packed_on_a_full_grid_is_measured_within_its_domain() {
     assert_eq!(o.status.code(), Some(0), "{out}{}", stderr(&o));
     assert!(out.contains("θi, θo ≤ 60° only"), "{out}");
 }
+
+/// A MERL file whose every value is a negative marker has nothing to compress: `pack` and
+/// `compress --max-error` refuse it (exit 2, naming the file) instead of meeting the budget
+/// vacuously with a file of zeros (590 bytes of black, exit 0, before). `inspect` and
+/// `convert` still read it.
+#[test]
+fn a_table_without_one_valid_cell_is_refused_by_the_planner() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let dims = [8i32, 8, 16];
+    let mut bytes: Vec<u8> = dims.iter().flat_map(|v| v.to_le_bytes()).collect();
+    for _ in 0..3 * 8 * 8 * 16 {
+        bytes.extend_from_slice(&(-1.0f64).to_le_bytes());
+    }
+    std::fs::write(d.join("dark.binary"), &bytes).unwrap();
+    let o = run(d, &["pack", "dark.binary", "-o", "dark.bpk"]);
+    assert_refused(&o, &["dark.binary", "invalid", "no file written"]);
+    assert!(!d.join("dark.bpk").exists());
+    let o = run(d, &["inspect", "dark.binary"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("valid 0"));
+    let o = run(
+        d,
+        &[
+            "convert",
+            "dark.binary",
+            "-o",
+            "dark-table.bpk",
+            "--codec",
+            "lossless",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = run(
+        d,
+        &[
+            "compress",
+            "dark-table.bpk",
+            "-o",
+            "c.bpk",
+            "--max-error",
+            "preview",
+        ],
+    );
+    assert_refused(&o, &["dark.binary", "invalid"]);
+    assert!(!d.join("c.bpk").exists());
+}

@@ -313,6 +313,9 @@ fn plan_once(input: PackInput, settings: &PackSettings, progress: Progress) -> R
         }
     };
     let source = held.get();
+    if let Some(t) = source.as_any().and_then(|a| a.downcast_ref::<Table>()) {
+        refuse_without_values(t)?;
+    }
     let (start, refine) = match grid {
         Some(g) => (g, false),
         None => {
@@ -722,12 +725,28 @@ fn estimate_pairs(effort: Effort) -> usize {
 /// [`plan`] of a table that is its own source (`compress` of a stored table): its own grid,
 /// no refinement, the error measured against its own linear interpolation (its exact f64
 /// values, when it has them, are not read).
+/// A table without one valid cell has no value to compress or to measure a file against: a
+/// budget would be met vacuously by a file of zeros (an all-invalid MERL file packed to 590
+/// bytes of black, exit 0). Refused as bad input.
+fn refuse_without_values(table: &Table) -> Result<()> {
+    if table.valid().iter().any(|&v| v) {
+        return Ok(());
+    }
+    Err(Error::input(format!(
+        "{}: every one of its {} cells is marked invalid (for a MERL file, a negative stored \
+         value), so there is no value to compress; no file written",
+        table.provenance().source,
+        table.valid().len()
+    )))
+}
+
 fn plan_table(
     table: Cow<'_, Table>,
     again: Option<Again>,
     settings: &PackSettings,
     progress: Progress,
 ) -> Result<Planned> {
+    refuse_without_values(&table)?;
     let mut timings = Vec::new();
     let t = Instant::now();
     progress("evaluating the source on the estimation and check sets");
