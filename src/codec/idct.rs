@@ -24,6 +24,7 @@ use super::DecodeScratch;
 use super::dct::{Coefficients, dct_entry};
 use super::simd::{Finisher, dispatch, finish, finish_one_from};
 use crate::table::CellSet;
+use std::borrow::Cow;
 
 /// One axis of the inverse: the transposed DCT basis truncated to the box's frequencies,
 /// for the first half of the outputs only. `rows[k·hp + n]` = C[k][n] (n < h = ⌈N/2⌉, zero
@@ -447,6 +448,31 @@ pub(crate) fn decode(
     }
 }
 
+/// [`decode`] of boxes the caller keeps (the rate control's quantized codes, still being
+/// entropy-coded beside the measurement): the same bits. The tiled decode of a MERL-grid
+/// table reads the codes where they are; the other paths take a copy.
+pub(crate) fn decode_of(
+    comps: &[Coefficients],
+    steps: &[f64],
+    dims: &[usize],
+    fin: &Finisher,
+    valid: &[bool],
+    out: &mut [f32],
+    scratch: &mut DecodeScratch,
+) {
+    let (c, d) = (comps.len(), dims.len());
+    let cells: usize = dims.iter().product();
+    // `decode`'s choice of path, up to its tiled one.
+    if (c == 1 || c == 3) && d == 3 && !(scratch.is_lean() && c == 1 && cells > IN_PLACE_CELLS) {
+        let (last, orders) = shared_orders(comps, dims);
+        if last == 0 {
+            decode_tiled(comps, steps, dims, &orders, fin, valid, out, scratch);
+            return;
+        }
+    }
+    decode(&mut comps.to_vec(), steps, dims, fin, valid, out, scratch);
+}
+
 /// [`decode`]'s values at the cells of a set alone: `out[i·C + k]` (i the cell's place in
 /// the set) gets the bits `decode` gives the cell's channel k, without a plane of the
 /// grid's size. Each component is expanded along the first axis of `decode`'s order, then
@@ -467,6 +493,56 @@ pub(crate) fn decode_cells(
     out: &mut [f32],
 ) {
     let c = comps.len();
+    check_cells_args(c, dims, cells, out);
+    let (_, orders) = shared_orders(comps, dims);
+    for k in 0..c {
+        // Each box's codes are taken as its pass begins: dequantized in their own memory.
+        let codes = std::mem::take(&mut comps[k].codes);
+        expand_or_zero(
+            &comps[k],
+            Cow::Owned(codes),
+            steps[k],
+            dims,
+            &orders[k],
+            cells,
+            k,
+            out,
+        );
+    }
+    finish_cells(c, fin, valid, cells, out);
+}
+
+/// [`decode_cells`] of boxes the caller keeps (the rate control's quantized codes, still
+/// being entropy-coded beside the measurement): the same bits, without their payload's
+/// decode. A box with mostly nonzero codes is copied for its first pass.
+pub(crate) fn decode_cells_of(
+    comps: &[Coefficients],
+    steps: &[f64],
+    dims: &[usize],
+    fin: &Finisher,
+    valid: &[bool],
+    cells: &CellSet,
+    out: &mut [f32],
+) {
+    let c = comps.len();
+    check_cells_args(c, dims, cells, out);
+    let (_, orders) = shared_orders(comps, dims);
+    for (k, q) in comps.iter().enumerate() {
+        expand_or_zero(
+            q,
+            Cow::Borrowed(&q.codes),
+            steps[k],
+            dims,
+            &orders[k],
+            cells,
+            k,
+            out,
+        );
+    }
+    finish_cells(c, fin, valid, cells, out);
+}
+
+fn check_cells_args(c: usize, dims: &[usize], cells: &CellSet, out: &[f32]) {
     assert!(c == 1 || c == 3, "decode_cells: 1 or 3 components");
     assert_eq!(out.len(), cells.len() * c, "decode_cells: output length");
     assert_eq!(
@@ -474,18 +550,32 @@ pub(crate) fn decode_cells(
         dims.iter().product::<usize>(),
         "decode_cells: the set's grid"
     );
-    let d = dims.len();
-    let (_, orders) = shared_orders(comps, dims);
-    for (k, ((q, &s), order)) in comps.iter_mut().zip(steps).zip(&orders).enumerate() {
-        if is_empty_box(q, d) {
-            // 0 before the finishing step, as in `decode`.
-            for v in out.iter_mut().skip(k).step_by(c) {
-                *v = 0.0;
-            }
-        } else {
-            expand_at_cells(q, s, dims, order, cells, k, c, out);
+}
+
+/// Component k of [`decode_cells`] before the finishing step: its box expanded at the set's
+/// cells, or 0 for an empty box (as in [`decode`]).
+#[allow(clippy::too_many_arguments)] // one component's box, codes, step and place.
+fn expand_or_zero(
+    q: &Coefficients,
+    codes: Cow<'_, [i32]>,
+    step: f64,
+    dims: &[usize],
+    order: &[usize],
+    cells: &CellSet,
+    k: usize,
+    out: &mut [f32],
+) {
+    let c = if out.len() == cells.len() { 1 } else { 3 };
+    if codes.is_empty() || q.extent.len() != dims.len() {
+        for v in out.iter_mut().skip(k).step_by(c) {
+            *v = 0.0;
         }
+    } else {
+        expand_at_cells(q, codes, step, dims, order, cells, k, c, out);
     }
+}
+
+fn finish_cells(c: usize, fin: &Finisher, valid: &[bool], cells: &CellSet, out: &mut [f32]) {
     if c == 1 {
         fin.run_cells::<1>(cells, valid, out);
     } else {
@@ -497,7 +587,8 @@ pub(crate) fn decode_cells(
 /// expanded plane's value at the set's cell of place i.
 #[allow(clippy::too_many_arguments)] // the component, its place and the set's output.
 fn expand_at_cells(
-    q: &mut Coefficients,
+    q: &Coefficients,
+    codes: Cow<'_, [i32]>,
     step: f64,
     dims: &[usize],
     order: &[usize],
@@ -509,8 +600,7 @@ fn expand_at_cells(
     use rayon::prelude::*;
     let a0 = order[0];
     let n0 = dims[a0];
-    let first = FirstPass::new(q, step, dims, a0);
-    let q: &Coefficients = q;
+    let first = FirstPass::new(q, codes, step, dims, a0);
     // A cell's flat index is hi·(n0·stride) + j·stride + lo (j its index along a0), its
     // index in slab j's full array hi·stride + lo.
     let stride: usize = dims[a0 + 1..].iter().product();
@@ -623,14 +713,20 @@ enum FirstPass {
 impl FirstPass {
     /// The box of `q` (its codes taken) dequantized at `step`, ready to give its slabs along
     /// axis `a0` of `dims`.
-    fn new(q: &mut Coefficients, step: f64, dims: &[usize], a0: usize) -> FirstPass {
-        let codes = std::mem::take(&mut q.codes);
+    fn new(
+        q: &Coefficients,
+        codes: Cow<'_, [i32]>,
+        step: f64,
+        dims: &[usize],
+        a0: usize,
+    ) -> FirstPass {
         let nonzero = codes.iter().filter(|&&c| c != 0).count();
         // 8 bytes a nonzero value against 4 a code: sparse when under half are nonzero.
         if nonzero * 2 >= codes.len() {
             // Dequantized in the codes' own memory (a collect from a vector into one of the
             // same layout reuses its allocation), then expanded along a0 there.
             let cur: Vec<f32> = codes
+                .into_owned()
                 .into_iter()
                 .map(|code| dequantized(code, step))
                 .collect();
@@ -1858,7 +1954,8 @@ mod tests {
     /// expanded whole or a slab at a time from the nonzero codes, the others a slab at a
     /// time) are the bits the whole decode gives them, fused, tiled or in place: 3 and 4
     /// axes, 1 and 3 components, full, partial and empty boxes, dense and sparse, every cell
-    /// or a few.
+    /// or a few. So are those of the boxes kept by the caller ([`decode_of`],
+    /// [`decode_cells_of`]).
     #[test]
     fn listed_cells_decode_to_the_whole_decodes_bits() {
         let cases: [(&[usize], [&[usize]; 3]); 4] = [
@@ -1926,6 +2023,20 @@ mod tests {
                         &mut whole,
                         &mut scratch,
                     );
+                    // The boxes kept (the rate control's codes): the same bits.
+                    let mut kept = vec![f32::NAN; cells * c];
+                    let mut scratch = if lean {
+                        DecodeScratch::lean()
+                    } else {
+                        DecodeScratch::default()
+                    };
+                    decode_of(&comps, steps, dims, &fin, &valid, &mut kept, &mut scratch);
+                    assert!(
+                        kept.iter()
+                            .zip(&whole)
+                            .all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "dims {dims:?}, {c} components: decode_of"
+                    );
                     for list in [&every, &some] {
                         let set = CellSet::new(cells, list.iter().copied());
                         let mut got = vec![f32::NAN; list.len() * c];
@@ -1938,12 +2049,20 @@ mod tests {
                             &set,
                             &mut got,
                         );
+                        let mut got_of = vec![f32::NAN; list.len() * c];
+                        decode_cells_of(&comps, steps, dims, &fin, &valid, &set, &mut got_of);
                         for (i, &f) in list.iter().enumerate() {
                             for k in 0..c {
+                                let want = whole[f as usize * c + k].to_bits();
                                 assert_eq!(
                                     got[i * c + k].to_bits(),
-                                    whole[f as usize * c + k].to_bits(),
+                                    want,
                                     "dims {dims:?}, {c} components, cell {f}, channel {k}"
+                                );
+                                assert_eq!(
+                                    got_of[i * c + k].to_bits(),
+                                    want,
+                                    "decode_cells_of: dims {dims:?}, {c} components, cell {f}"
                                 );
                             }
                         }

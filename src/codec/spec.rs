@@ -592,6 +592,99 @@ impl CodecSpec {
         Ok(())
     }
 
+    /// The transform and steps of a DCT chain that decodes from its boxes alone (no
+    /// residual), for [`CodecSpec::decode_of`] and [`CodecSpec::decode_cells_of`].
+    fn dct_parts(
+        &self,
+        comps: &[dct::Coefficients],
+        layout: &Layout,
+    ) -> Result<(&Transform, &[f64])> {
+        self.validate(layout)?;
+        let c = layout.channels;
+        let dims = layout.dims();
+        let parts = match self {
+            CodecSpec::Dct {
+                transform,
+                dct: stage,
+                ..
+            }
+            | CodecSpec::DctContext {
+                transform,
+                dct: stage,
+                ..
+            } if self.residual().is_none() => Some((transform, stage.step.as_slice())),
+            _ => None,
+        };
+        match parts {
+            Some(p)
+                if comps.len() == c
+                    && comps
+                        .iter()
+                        .all(|q| q.codes.is_empty() || q.extent.len() == dims.len()) =>
+            {
+                Ok(p)
+            }
+            _ => Err(Error::Failure(format!(
+                "decoding kept boxes: not a DCT chain without a residual, or {} boxes of another table ({c} channels)",
+                comps.len()
+            ))),
+        }
+    }
+
+    /// [`CodecSpec::decode_into_with`] of the quantized boxes `comps` the payload codes (the
+    /// bits a reader gets from the payload): the rate control measures a candidate from its
+    /// codes while they are entropy-coded, instead of decoding the payload after.
+    pub(crate) fn decode_of(
+        &self,
+        comps: &[dct::Coefficients],
+        layout: &Layout,
+        out: &mut [f32],
+        scratch: &mut DecodeScratch,
+    ) -> Result<()> {
+        let (transform, steps) = self.dct_parts(comps, layout)?;
+        if out.len() != layout.values()? {
+            return Err(Error::Failure(
+                "decode_of: the output is not the table's size".to_string(),
+            ));
+        }
+        let fin = simd::Finisher::new(transform, layout);
+        idct::decode_of(
+            comps,
+            steps,
+            &layout.dims(),
+            &fin,
+            layout.valid,
+            out,
+            scratch,
+        );
+        Ok(())
+    }
+
+    /// [`CodecSpec::decode_cells`] of the quantized boxes `comps` the payload codes, as
+    /// [`CodecSpec::decode_of`].
+    pub(crate) fn decode_cells_of(
+        &self,
+        comps: &[dct::Coefficients],
+        layout: &Layout,
+        cells: &crate::table::CellSet,
+        out: &mut [f32],
+    ) -> Result<()> {
+        let (transform, steps) = self.dct_parts(comps, layout)?;
+        let c = layout.channels;
+        let dims = layout.dims();
+        if !self.decodes_cells(c)
+            || out.len() != cells.len() * c
+            || cells.grid_cells() != dims.iter().product::<usize>()
+        {
+            return Err(Error::Failure(format!(
+                "decode_cells_of: not 1 or 3 channels ({c}), or the set or the output is not of this table"
+            )));
+        }
+        let fin = simd::Finisher::new(transform, layout);
+        idct::decode_cells_of(comps, steps, &dims, &fin, layout.valid, cells, out);
+        Ok(())
+    }
+
     /// As [`CodecSpec::decode_into`], with the decoder's working arrays kept in `scratch`
     /// between calls: a loader decoding many tables of one size then also skips mapping,
     /// faulting in and zeroing the coefficient boxes and pass arrays (~25 MB for the

@@ -28,7 +28,7 @@
 use super::budget::Budget;
 use super::estimate::{ErrorEstimator, Estimate};
 use crate::check::Metrics;
-use crate::codec::coefcode::{self, ContextCoding, DEFAULT_DEADZONE};
+use crate::codec::coefcode::{self, ContextCoding, ContextModel, DEFAULT_DEADZONE};
 use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
@@ -1219,7 +1219,7 @@ impl Control<'_> {
         let mut step = s;
         let mut relaxation = FILL_RELAXATION;
         for k in 0..REFINED_TRIES {
-            let (mut spec, mut payload) = self.refined_at(&best.0, step, relaxation);
+            let (mut spec, mut payload, mut codes) = self.refined_at(&best.0, step, relaxation);
             // At the accepted step the refined file may be a little larger and still pay:
             // its error is lower, so the larger step it leaves room for can win. Later
             // tries must be smaller than what they replace.
@@ -1233,12 +1233,13 @@ impl Control<'_> {
                 // unrefined at 4,185 B against the plain pass's 3,208 B): the plain pass
                 // instead, for this file's tries.
                 relaxation = 1.0;
-                (spec, payload) = self.refined_at(&best.0, step, relaxation);
+                (spec, payload, codes) = self.refined_at(&best.0, step, relaxation);
             }
             if too_large(&spec, &payload, &best) {
                 break;
             }
-            let e = self.measure_payload(&spec, &payload, step)?;
+            let e = self.measure_boxes(&spec, &codes, step)?;
+            drop(codes);
             let meets = accepts(self.budget, &e);
             self.trials.push(RateTrial {
                 variant: format!("{} refined", self.variant.describe()),
@@ -1272,8 +1273,14 @@ impl Control<'_> {
         })
     }
 
-    /// `spec` (a context-coded DCT) at step `s` with the fill refined at `s`, and its payload.
-    fn refined_at(&self, spec: &CodecSpec, s: f64, relaxation: f32) -> (CodecSpec, Vec<u8>) {
+    /// `spec` (a context-coded DCT) at step `s` with the fill refined at `s`, its payload and
+    /// its quantized boxes.
+    fn refined_at(
+        &self,
+        spec: &CodecSpec,
+        s: f64,
+        relaxation: f32,
+    ) -> (CodecSpec, Vec<u8>, Vec<dct::Coefficients>) {
         let dims = self.table.grid().shape();
         let v = self.variant;
         let codes: Vec<_> = self
@@ -1308,7 +1315,7 @@ impl Control<'_> {
             dct.step.iter_mut().for_each(|x| *x = s);
             coding.model = model;
         }
-        (spec, payload)
+        (spec, payload, codes)
     }
 
     /// [`Control::measure`] at step `s`, recorded in the trials with the step's predicted
@@ -1334,8 +1341,7 @@ impl Control<'_> {
         let dims = self.table.grid().shape();
         let v = self.variant;
         (self.progress)(&format!("trying step {s:.4e} ({})", v.describe()));
-        // The payload in whichever line-end model codes it smaller; the spec records it.
-        let (model, payload) = if v.refine > 0 {
+        let codes = if v.refine > 0 {
             let coefs = dct_coefficients_for(
                 self.table,
                 self.transform,
@@ -1345,19 +1351,9 @@ impl Control<'_> {
                 &vec![s; c],
                 &ContextCoding::new(v.deadzone),
             )?;
-            coefcode::encode_smaller(&coefcode::quantize_all(
-                &coefs,
-                &dims,
-                &vec![s; c],
-                v.deadzone,
-            ))
+            coefcode::quantize_all(&coefs, &dims, &vec![s; c], v.deadzone)
         } else {
-            coefcode::encode_smaller(&coefcode::quantize_all(
-                self.coefs,
-                &dims,
-                &vec![s; c],
-                v.deadzone,
-            ))
+            coefcode::quantize_all(self.coefs, &dims, &vec![s; c], v.deadzone)
         };
         let spec = CodecSpec::DctContext {
             domain: if v.refine > 0 {
@@ -1371,27 +1367,50 @@ impl Control<'_> {
             dct: dct::DctStage { step: vec![s; c] },
             coding: ContextCoding {
                 deadzone: v.deadzone,
-                model,
+                // Set below (no value depends on it).
+                model: ContextModel::CURRENT,
             },
             residual: None,
         };
-        let e = self.measure_payload(&spec, &payload, s)?;
+        // The payload in whichever line-end model codes it smaller; the spec records it.
+        // (The codes measured beside the encode, in `rayon::join`, were 0.1 s faster on
+        // chrome-steel, but glibc's heaps of the worker threads then kept 15–25 MB more
+        // resident: 147 MB peak RSS on color-changing-paint1. One heap for all threads,
+        // `M_ARENA_MAX` 1, made other packs up to 15% slower.)
+        let (model, payload) = coefcode::encode_smaller(&codes);
+        let mut spec = spec;
+        if let CodecSpec::DctContext { coding, .. } = &mut spec {
+            coding.model = model;
+        }
+        let e = self.measure_boxes(&spec, &codes, s)?;
         Ok((spec, payload, e))
     }
 
-    /// Decodes `payload` (of `spec`, at step `s`) as a reader would and measures it against
-    /// the source.
-    fn measure_payload(&mut self, spec: &CodecSpec, payload: &[u8], s: f64) -> Result<Estimate> {
+    /// The candidate of quantized boxes `codes` (of `spec`, at step `s`) decoded as a reader
+    /// decodes its payload, at the estimator's cells or into the decode buffer, and measured
+    /// against the source. The boxes are what a reader's range decoder gives back from the
+    /// payload, so the payload itself is not decoded: that serial decode was ~0.2 s of the
+    /// chrome-steel fit's 2.1 s production pack (docs/benchmarks.md). The written file is
+    /// still read back from its bytes and checked after the choice.
+    fn measure_boxes(
+        &mut self,
+        spec: &CodecSpec,
+        codes: &[dct::Coefficients],
+        s: f64,
+    ) -> Result<Estimate> {
         let c = self.table.channels().len();
+        let nonfinite = || {
+            Error::Failure(format!(
+                "rate control: step {s:e} decoded to a non-finite value"
+            ))
+        };
         if decodes_at_cells(self.table) && spec.decodes_cells(c) {
             let cells = self.est.cells();
             let mut at_cells = vec![0f32; cells.len() * c];
             crate::memory::release_free_memory();
-            spec.decode_cells(payload, self.layout, cells, &mut at_cells)?;
+            spec.decode_cells_of(codes, self.layout, cells, &mut at_cells)?;
             if at_cells.iter().any(|v| !v.is_finite()) {
-                return Err(Error::Failure(format!(
-                    "rate control: step {s:e} decoded to a non-finite value"
-                )));
+                return Err(nonfinite());
             }
             return Ok(self.est.measure_cells(&at_cells));
         }
@@ -1404,15 +1423,13 @@ impl Control<'_> {
         let mut scratch = DecodeScratch::lean();
         // The decode is the rate control's peak (the table, the coefficients, the decode
         // buffer and the decoder's scratch): what earlier stages freed (the DCT's planes, the
-        // transform's samples, the last candidate's codes and measurement) must not stay
-        // resident beside it.
+        // transform's samples, the last candidate's measurement) must not stay resident
+        // beside it.
         crate::memory::release_free_memory();
-        spec.decode_into_with(payload, self.layout, self.decoded, &mut scratch)?;
+        spec.decode_of(codes, self.layout, self.decoded, &mut scratch)?;
         drop(scratch);
         if self.decoded.iter().any(|v| !v.is_finite()) {
-            return Err(Error::Failure(format!(
-                "rate control: step {s:e} decoded to a non-finite value"
-            )));
+            return Err(nonfinite());
         }
         Ok(self.est.measure(self.decoded))
     }
