@@ -225,7 +225,13 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
     let full_channels = src.channels().clone();
     let src = scene.restrict_source(src)?;
     let source_name = src.describe();
+    // The source read above, handed to the planner's first open instead of read again (a MERL
+    // file's read is ~80 ms).
+    let opened: std::sync::Mutex<Option<Box<dyn crate::brdf::Brdf>>> = Default::default();
     let open = || -> crate::Result<Box<dyn crate::brdf::Brdf>> {
+        if let Some(src) = opened.lock().ok().and_then(|mut o| o.take()) {
+            return Ok(src);
+        }
         let spec = a.source.as_deref().unwrap_or_default();
         scene.restrict_source(
             a.symmetry
@@ -270,7 +276,14 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
             let options = symmetry.options(None);
             // Planned from a table file, the source is read by the planner (and again by the
             // check).
-            let held = (!reopenable).then_some(src);
+            let held = if reopenable {
+                if let Ok(mut o) = opened.lock() {
+                    *o = Some(src);
+                }
+                None
+            } else {
+                Some(src)
+            };
             let input = match held.as_deref() {
                 Some(source) => PackInput::Source {
                     source,
