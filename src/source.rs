@@ -67,6 +67,12 @@ impl Source {
         };
         // Any existing non-directory: regular files, and devices, FIFOs, /dev/stdin.
         if spec == "-" || path.exists() {
+            if spec != "-"
+                && let Some(t) = io::merl::read_regular_file(path)?
+            {
+                reads.record(path);
+                return Ok(Source::Table(t));
+            }
             let bytes = atomic::read_input(path)?;
             reads.record(path);
             return match io::detect(&bytes, path) {

@@ -104,6 +104,11 @@ pub fn decode_table(bytes: &[u8], path: &Path) -> Result<Table> {
 
 /// Reads a table file (native, EXR or MERL; `-` = stdin).
 pub fn read_table(path: &Path) -> Result<Table> {
+    if path.as_os_str() != "-"
+        && let Some(t) = merl::read_regular_file(path)?
+    {
+        return Ok(t);
+    }
     let bytes = atomic::read_input(path)?;
     decode_table(&bytes, path)
 }
