@@ -167,8 +167,12 @@ pub fn plan_rgl(
     let derived_floor = est.measure(&derived)?;
     timings.push(("derived VNDF".to_string(), t.elapsed().as_secs_f64()));
     let mut forms = Vec::new();
-    if accepts(&settings.budget, &derived_floor) {
-        forms.push((Form::Derived, derived, derived_floor));
+    // The derived source is held only when its form is tried (a second copy of every field:
+    // ~300 MB of a 72 MB anisotropic file's parsed fields, as were two clones of the source
+    // for the other forms, which read the source itself).
+    let derived = accepts(&settings.budget, &derived_floor).then_some(derived);
+    if derived.is_some() {
+        forms.push((Form::Derived, derived_floor));
     }
     // Otherwise (or when no step meets the budget with the derived one) the file's own VNDF,
     // coded with the colours; stored exactly when no coding of it meets the budget.
@@ -176,19 +180,23 @@ pub fn plan_rgl(
     let vdims = vndf_dims(&fields.require("vndf", what)?.shape);
     let exact_floor = est.measure(source)?;
     if vdims.is_some() {
-        forms.push((Form::Coded, source.clone(), exact_floor.clone()));
+        forms.push((Form::Coded, exact_floor.clone()));
     }
-    forms.push((Form::Stored, source.clone(), exact_floor));
+    forms.push((Form::Stored, exact_floor));
 
     let t = Instant::now();
     let mut best: Option<(PackOptions, Estimate, Estimate, usize)> = None;
     let mut start = first_step(&settings.budget);
-    for (form, base, floor) in forms {
+    for (form, floor) in forms {
+        let base = match (form, &derived) {
+            (Form::Derived, Some(d)) => d,
+            _ => source,
+        };
         progress(&format!(
             "coding the colour tensor (VNDF {})",
             form.vndf(None).name()
         ));
-        for &(eps_share, deadzone) in variants(settings.effort) {
+        for &(eps_share, deadzone) in variants(settings.effort, colour.len() + vndf.len()) {
             // The VNDF, when coded, with the colours' step and ε rule: both are densities or
             // values whose relative errors the log curve measures.
             let options_for = |step: f64| PackOptions {
@@ -267,8 +275,17 @@ pub fn plan_rgl(
     };
     let mut bytes = file(&options)?;
     // Lossless, when it is the smaller file (a tiny tensor): exact, so within any budget.
-    let exact = file(&PackOptions::lossless())?;
-    let (options, estimate, floor) = if exact.len() < bytes.len() {
+    // Its zstd level 19 takes ~20 s on the 72 MB of an anisotropic file, so it is made only
+    // when it may win: when half of a fast level's size of its two large fields is below the
+    // coded file (level 19 gains some 5–20% over level 3 on f32 values, never a factor 2).
+    let t = Instant::now();
+    let exact = if lossless_may_win(fields, what, bytes.len())? {
+        Some(file(&PackOptions::lossless())?)
+    } else {
+        None
+    };
+    timings.push(("lossless compared".to_string(), t.elapsed().as_secs_f64()));
+    let (options, estimate, floor) = if let Some(exact) = exact.filter(|e| e.len() < bytes.len()) {
         bytes = exact;
         let e = est.measure(source)?;
         (PackOptions::lossless(), e.clone(), e)
@@ -284,6 +301,32 @@ pub fn plan_rgl(
         timings,
         estimate_samples: est.samples(),
     })
+}
+
+/// Whether the lossless file of `fields` may be smaller than a coded file of `coded` bytes:
+/// its colour tensor and VNDF (all but a few KB of it) compressed at zstd's fast level 3 and
+/// halved (level 19, which the lossless file uses, never halves level 3's size on f32
+/// values) fall below `coded`.
+fn lossless_may_win(
+    fields: &crate::io::rgl::fields::RglFields,
+    what: &str,
+    coded: usize,
+) -> Result<bool> {
+    let mut fast = 0usize;
+    for name in [colour_name(fields), "vndf"] {
+        if fields.get(name).is_none() {
+            continue;
+        }
+        let raw: Vec<u8> = fields
+            .f32_of(name, what)?
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        fast += zstd::bulk::compress(&raw, 3)
+            .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?
+            .len();
+    }
+    Ok(fast / 2 < coded)
 }
 
 /// The first step tried when no variant has been measured yet: the coding error of a step s
@@ -313,8 +356,14 @@ fn first_step(budget: &Budget) -> f64 {
 /// dead zone; `fast` the middle ε alone. Which makes the smallest file depends on the file
 /// (how much a dark node's relative error reaches the metrics depends on how many pairs the
 /// warp sends to it and on the bright nodes it is blended with), so it is measured, not set.
-fn variants(effort: Effort) -> &'static [(f64, f64)] {
+///
+/// At the default effort a tensor and VNDF of more than [`HEAVY_VALUES`] values measure the
+/// middle ε alone, as `fast`: each trial codes, decodes and evaluates them (~2 s for the 72 MB
+/// file `convert` writes from an anisotropic GGX, ~7 trials a variant), and the three variants
+/// took 41 s there for a file 0.35% smaller than the middle one's (15 s).
+fn variants(effort: Effort, values: usize) -> &'static [(f64, f64)] {
     match effort {
+        Effort::Default if values > HEAVY_VALUES => variants(Effort::Fast, values),
         Effort::Fast => &[(1e-2, 0.5)],
         Effort::Default => &[(1e-2, 0.5), (1e-3, 0.5), (3e-2, 0.5)],
         Effort::Max => &[
@@ -326,6 +375,11 @@ fn variants(effort: Effort) -> &'static [(f64, f64)] {
         ],
     }
 }
+
+/// Values (colour tensor and VNDF) above which the default effort measures one coding variant
+/// ([`variants`]): 2²³, 32 MB of f32. The four RGL files in `../shared` hold 0.16 M, the
+/// default isotropic file `convert` writes ~1 M.
+const HEAVY_VALUES: usize = 1 << 23;
 
 /// Steps are tried down to this (log units: a relative 3e-7, f32's own precision) before the
 /// coding is given up.
