@@ -492,24 +492,15 @@ pub(crate) fn decode_cells(
     cells: &CellSet,
     out: &mut [f32],
 ) {
-    let c = comps.len();
-    check_cells_args(c, dims, cells, out);
+    check_cells_args(comps.len(), dims, cells, out);
     let (_, orders) = shared_orders(comps, dims);
-    for k in 0..c {
-        // Each box's codes are taken as its pass begins: dequantized in their own memory.
-        let codes = std::mem::take(&mut comps[k].codes);
-        expand_or_zero(
-            &comps[k],
-            Cow::Owned(codes),
-            steps[k],
-            dims,
-            &orders[k],
-            cells,
-            k,
-            out,
-        );
-    }
-    finish_cells(c, fin, valid, cells, out);
+    // Each box's codes are dequantized in their own memory as its pass begins.
+    let codes: Vec<Vec<i32>> = comps
+        .iter_mut()
+        .map(|q| std::mem::take(&mut q.codes))
+        .collect();
+    let codes = codes.into_iter().map(Cow::Owned);
+    expand_and_finish(comps, codes, &orders, steps, dims, fin, valid, cells, out);
 }
 
 /// [`decode_cells`] of boxes the caller keeps (the rate control's quantized codes, still
@@ -524,22 +515,30 @@ pub(crate) fn decode_cells_of(
     cells: &CellSet,
     out: &mut [f32],
 ) {
-    let c = comps.len();
-    check_cells_args(c, dims, cells, out);
+    check_cells_args(comps.len(), dims, cells, out);
     let (_, orders) = shared_orders(comps, dims);
-    for (k, q) in comps.iter().enumerate() {
-        expand_or_zero(
-            q,
-            Cow::Borrowed(&q.codes),
-            steps[k],
-            dims,
-            &orders[k],
-            cells,
-            k,
-            out,
-        );
+    let codes = comps.iter().map(|q| Cow::Borrowed(&q.codes[..]));
+    expand_and_finish(comps, codes, &orders, steps, dims, fin, valid, cells, out);
+}
+
+/// The boxes `comps` (their extents; their codes given by `codes`, in order) expanded at the
+/// set's cells along their `orders`, then finished: [`decode_cells`]' body.
+#[allow(clippy::too_many_arguments)] // `decode_cells`' arguments, its codes and orders.
+fn expand_and_finish<'a>(
+    comps: &[Coefficients],
+    codes: impl Iterator<Item = Cow<'a, [i32]>>,
+    orders: &[Vec<usize>],
+    steps: &[f64],
+    dims: &[usize],
+    fin: &Finisher,
+    valid: &[bool],
+    cells: &CellSet,
+    out: &mut [f32],
+) {
+    for (k, (q, codes)) in comps.iter().zip(codes).enumerate() {
+        expand_or_zero(q, codes, steps[k], dims, &orders[k], cells, k, out);
     }
-    finish_cells(c, fin, valid, cells, out);
+    finish_cells(comps.len(), fin, valid, cells, out);
 }
 
 fn check_cells_args(c: usize, dims: &[usize], cells: &CellSet, out: &[f32]) {

@@ -198,32 +198,58 @@ pub fn looks_like_merl(bytes: &[u8]) -> bool {
 /// [`MerlTable::to_table`].
 pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
     let dims = parse_dims(bytes, path, 0)?;
-    let name = path
-        .file_name()
-        .map(|f| f.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "<stdin>".into());
-    let n: usize = dims.iter().product();
-    let mut data = vec![0f32; 3 * n];
-    let mut exact = vec![0f64; 3 * n];
-    let mut valid = vec![true; n];
-    for c in 0..3 {
-        for cell in 0..n {
-            let r = stored_value(bytes, c * n + cell, n, path)?;
-            exact[cell * 3 + c] = r;
-            if r < 0.0 {
-                valid[cell] = false;
-            }
-            data[cell * 3 + c] = (r * SCALE[c]) as f32;
+    let mut values = StoredValues::new(dims.iter().product());
+    for i in 0..3 * values.n {
+        values.put(i, stored_value(bytes, i, values.n, path)?);
+    }
+    values.into_table(dims, path)
+}
+
+/// A MERL file's values as they are read (channel-major, in file order) into a table's
+/// cell-major f32 samples (stored × scale, rounded once), exact values and flags.
+struct StoredValues {
+    n: usize,
+    data: Vec<f32>,
+    exact: Vec<f64>,
+    valid: Vec<bool>,
+}
+
+impl StoredValues {
+    fn new(n: usize) -> StoredValues {
+        StoredValues {
+            n,
+            data: vec![0f32; 3 * n],
+            exact: vec![0f64; 3 * n],
+            valid: vec![true; n],
         }
     }
-    table_of(
-        dims,
-        &format!("MERL .binary file {name}"),
-        data,
-        exact,
-        valid,
-    )
-    .map_err(|e| Error::invalid_file(path, e.to_string()))
+
+    /// Stored value `i` (channel-major) is `r`: a negative one marks its cell invalid.
+    #[inline]
+    fn put(&mut self, i: usize, r: f64) {
+        let (c, cell) = (i / self.n, i % self.n);
+        self.exact[cell * 3 + c] = r;
+        if r < 0.0 {
+            self.valid[cell] = false;
+        }
+        self.data[cell * 3 + c] = (r * SCALE[c]) as f32;
+    }
+
+    /// The table of the file at `path` (`-`: stdin) of `dims`.
+    fn into_table(self, dims: [usize; 3], path: &Path) -> Result<Table> {
+        let name = path
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "<stdin>".into());
+        table_of(
+            dims,
+            &format!("MERL .binary file {name}"),
+            self.data,
+            self.exact,
+            self.valid,
+        )
+        .map_err(|e| Error::invalid_file(path, e.to_string()))
+    }
 }
 
 /// Reads the regular file `path` as a MERL file in chunks when its first bytes and size are
@@ -263,51 +289,27 @@ pub fn read_regular_file(path: &Path) -> Result<Option<Table>> {
         return Ok(None);
     }
     let dims = parse_dims_of(&head, len, path, 0)?;
-    let n: usize = dims.iter().product();
-    let mut data = vec![0f32; 3 * n];
-    let mut exact = vec![0f64; 3 * n];
-    let mut valid = vec![true; n];
+    let mut values = StoredValues::new(dims.iter().product());
+    let total = 3 * values.n;
     // The values after the header, in chunks of whole values (channel-major, as stored).
     let mut rest = head.split_off(HEADER_BYTES);
     let mut chunk = vec![0u8; 1 << 20];
     let mut i = 0usize;
-    while i < 3 * n {
-        let want = ((3 * n - i) * 8).min(chunk.len());
+    while i < total {
+        let want = ((total - i) * 8).min(chunk.len());
         let have = rest.len().min(want);
         chunk[..have].copy_from_slice(&rest[..have]);
         rest.drain(..have);
         f.read_exact(&mut chunk[have..want]).map_err(|e| {
-            Error::invalid_file(path, format!("read failed at value {i} of {}: {e}", 3 * n))
+            Error::invalid_file(path, format!("read failed at value {i} of {total}: {e}"))
         })?;
         for v in chunk[..want].chunks_exact(8) {
-            let r = finite_value(
-                f64::from_le_bytes(v.try_into().expect("8 bytes")),
-                i,
-                n,
-                path,
-            )?;
-            let (c, cell) = (i / n, i % n);
-            exact[cell * 3 + c] = r;
-            if r < 0.0 {
-                valid[cell] = false;
-            }
-            data[cell * 3 + c] = (r * SCALE[c]) as f32;
+            let r = f64::from_le_bytes(v.try_into().expect("8 bytes"));
+            values.put(i, finite_value(r, i, values.n, path)?);
             i += 1;
         }
     }
-    let name = path
-        .file_name()
-        .map(|f| f.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "<stdin>".into());
-    table_of(
-        dims,
-        &format!("MERL .binary file {name}"),
-        data,
-        exact,
-        valid,
-    )
-    .map(Some)
-    .map_err(|e| Error::invalid_file(path, e.to_string()))
+    values.into_table(dims, path).map(Some)
 }
 
 /// The dims of a `.binary` file's header, checked: positive, and their product accounts for
