@@ -395,6 +395,7 @@ fn a_spectral_file_packs_its_spectra() {
         ),
         vndf: packed::VndfPacking::Derived,
         derive_luminance: true,
+        derive_sigma: None,
     };
     let lossy = packed::to_bytes(src.fields(), &opts, &provenance()).unwrap();
     let h = packed::read_header(&lossy, Path::new("x")).unwrap();
@@ -547,6 +548,7 @@ fn tables_readers_refuse_it_and_damage_is_an_error() {
         ),
         vndf: packed::VndfPacking::Derived,
         derive_luminance: true,
+        derive_sigma: None,
     };
     let bytes = packed::to_bytes(src.fields(), &opts, &provenance()).unwrap();
     assert!(RglBsdf::from_bytes(&bytes, "x.bpk").is_ok());
@@ -669,6 +671,7 @@ fn every_flipped_byte_and_every_cut_is_an_error() {
         coding: brdfpack::codec::tensor::TensorCoding::dct_for(&rgb, &[2, 4, 4], 3, 1e-2, 0.1, 0.5),
         vndf: packed::VndfPacking::Stored,
         derive_luminance: true,
+        derive_sigma: None,
     };
     let bytes = packed::to_bytes(src.fields(), &opts, &provenance()).unwrap();
     assert!(RglBsdf::from_bytes(&bytes, "ok.bpk").is_ok());
@@ -786,5 +789,84 @@ fn a_packed_file_of_the_line_end_model_still_reads() {
             .map(|v| v.parse().unwrap())
             .collect();
         assert_eq!(got, want.to_vec(), "wi {wi} wo {wo}");
+    }
+}
+
+/// `sigma` is left for the reader to derive when it is its NDF's projected area times one
+/// constant (`packed::sigma_scale`): the synthetic file's made-up `sigma` is not, the same file
+/// with `sigma` = 1.01 × the projected area is (c = 1.01, read back within f32), and so are
+/// the four public RGL files (c 0.991–0.992, every node within 1.5e-4), whose packed files
+/// read back with `sigma` within 2e-4 of the source's and hold the budget as before
+/// (`bench --zoo`, docs/rgl.md).
+#[test]
+fn sigma_is_derived_where_it_is_the_ndfs_projected_area() {
+    let bytes = synthetic(1);
+    let f = RglFields::parse(&bytes, "synthetic").unwrap();
+    assert_eq!(packed::sigma_scale(&f, "synthetic").unwrap(), None);
+    let shape = f.get("sigma").unwrap().shape.clone();
+    let made = packed::with_derived_sigma(&f, 1.01, "synthetic").unwrap();
+    let c = packed::sigma_scale(&made, "synthetic")
+        .unwrap()
+        .expect("derivable");
+    assert!((c / 1.01 - 1.0).abs() < 1e-6, "{c}");
+    assert_eq!(made.get("sigma").unwrap().shape, shape);
+    // Packed with `sigma` derived, it reads back; a header asking for another shape (the
+    // work grows as its columns squared) is refused as a damaged file.
+    let opts = PackOptions {
+        derive_sigma: Some(c),
+        ..PackOptions::lossless()
+    };
+    let file = packed::to_bytes(&made, &opts, &provenance()).unwrap();
+    let (_, back) = packed::from_bytes(&file, Path::new("made")).unwrap();
+    assert_eq!(back.get("sigma").unwrap().shape, shape);
+    let wide = with_header(&file, |h| {
+        h["sigma"]["shape"] = serde_json::json!([2, 1_000_000])
+    });
+    let e = packed::from_bytes(&wide, Path::new("made")).unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    assert!(e.to_string().contains("is derived, but"), "{e}");
+    let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+    for name in [
+        "cc_ibiza_sunset_rgb",
+        "colodur_napoli_4f_rgb",
+        "paper_white_rgb",
+        "vch_golden_yellow_rgb",
+    ] {
+        if let Some(p) = common::shared_file(&format!("data/rgl/{name}.bsdf")) {
+            files.push((name.to_string(), std::fs::read(p).unwrap()));
+        }
+    }
+    if files.is_empty() {
+        println!("skipped the public RGL files: ../shared/data/rgl is absent");
+    }
+    for (name, bytes) in files {
+        let src = RglBsdf::from_bytes(&bytes, &name).unwrap();
+        let c = packed::sigma_scale(src.fields(), &name)
+            .unwrap()
+            .unwrap_or_else(|| panic!("{name}: sigma not derivable"));
+        assert!((0.98..1.0).contains(&c), "{name}: c {c}");
+        let opts = PackOptions {
+            derive_sigma: Some(c),
+            ..PackOptions::lossless()
+        };
+        let file = packed::to_bytes(src.fields(), &opts, &provenance()).unwrap();
+        let lossless = packed::to_bytes(src.fields(), &PackOptions::lossless(), &provenance());
+        // `sigma` left out of the stored fields' zstd block.
+        assert!(file.len() < lossless.unwrap().len(), "{name}");
+        let (head, back) = packed::from_bytes(&file, Path::new(&name)).unwrap();
+        assert_eq!(head.sigma.as_ref().map(|d| d.scale), Some(c));
+        let (a, b) = (
+            back.f32_of("sigma", &name).unwrap(),
+            src.fields().f32_of("sigma", &name).unwrap(),
+        );
+        let worst = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (f64::from(*x) / f64::from(*y) - 1.0).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 2e-4, "{name}: sigma read back within {worst:e}");
+        for (x, y) in back.fields.iter().zip(&src.fields().fields) {
+            assert!(x == y || x.name == "sigma", "{name}: {}", x.name);
+        }
     }
 }

@@ -120,7 +120,7 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
                 use crate::codec::tensor::TensorCoding;
                 outln!(
                     "packed: {} (a .bpk holding the RGL file in its own parameterization): \
-                     {} {}; VNDF {}",
+                     {} {}; VNDF {}{}",
                     p.format,
                     p.colour.name,
                     match &p.colour.coding {
@@ -133,6 +133,10 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
                         crate::io::rgl::packed::FieldForm::Derived => "derived from the NDF",
                         crate::io::rgl::packed::FieldForm::Stored => "stored",
                         crate::io::rgl::packed::FieldForm::Coded => "coded (signed log, DCT)",
+                    },
+                    match &p.sigma {
+                        Some(d) => format!("; sigma derived from the NDF (× {})", d.scale),
+                        None => String::new(),
                     }
                 );
                 outln!("source: {}", sanitize(&p.provenance.source));

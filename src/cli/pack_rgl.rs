@@ -25,6 +25,8 @@ struct RglPackReport {
     form: &'static str,
     coding: TensorCoding,
     vndf: &'static str,
+    /// `stored`, or `derived` from the NDF (times the file's constant).
+    sigma: &'static str,
     bytes: usize,
     /// The colour tensor's values as f32.
     raw_f32_bytes: usize,
@@ -123,6 +125,11 @@ pub fn run(
         form: crate::io::rgl::packed::FORMAT,
         coding: planned.options.coding.clone(),
         vndf: planned.options.vndf.name(),
+        sigma: if planned.options.derive_sigma.is_some() {
+            "derived"
+        } else {
+            "stored"
+        },
         bytes: planned.bytes.len(),
         raw_f32_bytes: raw,
         compression_ratio: raw as f64 / planned.bytes.len() as f64,
@@ -172,8 +179,8 @@ fn human(r: &RglPackReport) -> String {
     };
     let _ = writeln!(
         s,
-        "form          RGL tensor in its own parameterization ({}): colour {coding}; VNDF {}",
-        r.form, r.vndf
+        "form          RGL tensor in its own parameterization ({}): colour {coding}; VNDF {}; sigma {}",
+        r.form, r.vndf, r.sigma
     );
     let _ = writeln!(
         s,

@@ -179,6 +179,80 @@ pub fn derived_vndf(
     out
 }
 
+/// The projected area σ(wi) = ∫ D(m) max(0, wi·m) dm of an isotropic NDF (every row of the
+/// `[rows][cols]` grid `ndf_values` the same), on a `sigma` grid of `sigma_shape`
+/// `[rows, cols]` (node x at u_θ = x/(cols − 1), θ = u_θ²·π/2, as the NDF's): the measured
+/// files' `sigma` up to one constant per file (their NDFs are normalised by another
+/// quadrature: `sigma` is 0.991–0.992 of this on the four public files, constant to 1.5e-4
+/// over θ). `None` for an anisotropic NDF.
+///
+/// The azimuth is integrated in closed form (∫₀^{2π} max(0, a cos φ + b) dφ =
+/// 2(b φ₀ + a sin φ₀), cos φ₀ = −b/a, for |b| < a), θm by Simpson's rule, 16 intervals in
+/// each NDF cell, over the NDF's linear interpolation in u_θ (dθ = π u_θ du_θ).
+pub fn projected_area(
+    ndf_values: &[f32],
+    ndf_shape: [usize; 2],
+    sigma_shape: [usize; 2],
+) -> Option<Vec<f64>> {
+    let [rows, cols] = ndf_shape;
+    let [s_rows, s_cols] = sigma_shape;
+    if rows == 0 || cols < 2 || s_rows == 0 || s_cols < 2 || ndf_values.len() != rows * cols {
+        return None;
+    }
+    let first = &ndf_values[..cols];
+    if ndf_values.chunks_exact(cols).any(|r| r != first) {
+        return None;
+    }
+    const PER_CELL: usize = 16;
+    let n = (cols - 1) * PER_CELL;
+    // Nodes of θm: u, θm, its sine and cosine, D, Simpson weight × dθ/du.
+    let nodes: Vec<(f64, f64, f64, f64)> = (0..=n)
+        .map(|k| {
+            let u = k as f64 / n as f64;
+            let theta = u * u * FRAC_PI_2;
+            let cell = (k / PER_CELL).min(cols - 2);
+            let t = (u * (cols - 1) as f64 - cell as f64).clamp(0.0, 1.0);
+            let d = f64::from(first[cell]) * (1.0 - t) + f64::from(first[cell + 1]) * t;
+            let w = if k == 0 || k == n {
+                1.0
+            } else if k % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
+            let (sin, cos) = theta.sin_cos();
+            (sin, cos, d, w / (3.0 * n as f64) * PI * u)
+        })
+        .collect();
+    let per_column: Vec<f64> = (0..s_cols)
+        .map(|x| {
+            let u = x as f64 / (s_cols - 1) as f64;
+            let (sin_i, cos_i) = (u * u * FRAC_PI_2).sin_cos();
+            nodes
+                .iter()
+                .map(|&(sin_m, cos_m, d, w)| {
+                    let a = sin_m * sin_i;
+                    let b = cos_m * cos_i;
+                    let azimuths = if b >= a {
+                        2.0 * PI * b
+                    } else if b <= -a {
+                        0.0
+                    } else {
+                        let c = (-b / a).clamp(-1.0, 1.0);
+                        2.0 * (b * c.acos() + a * (1.0 - c * c).sqrt())
+                    };
+                    d.max(0.0) * azimuths * sin_m * w
+                })
+                .sum()
+        })
+        .collect();
+    Some(
+        (0..s_rows)
+            .flat_map(|_| per_column.iter().copied())
+            .collect(),
+    )
+}
+
 /// The `luminance` field of a `[Nφ, Nθ, 3, n, n]` `rgb` tensor: Rec. 709 luminance
 /// 0.2126 R + 0.7152 G + 0.0722 B per node, `[Nφ, Nθ, n, n]`, at least 0 (Mitsuba samples
 /// in proportion to it; the measured files hold no negative luminance).
@@ -224,6 +298,42 @@ mod tests {
         let g = derived_vndf(&[0.0], &[FRAC_PI_2 as f32], &[1.0; 4], [2, 2], 3, 3);
         assert_eq!(g[2], 0.0);
         assert!(g[3 + 2] > 0.0);
+    }
+
+    /// The projected area of a GGX NDF (normalised: ∫ D cos θm dm = 1) is Smith's
+    /// cos θi (1 + Λ(θi)), Λ = (√(1 + α² tan² θi) − 1)/2 (Heitz 2014, "Understanding the
+    /// masking-shadowing function"). The NDF is sampled on 256 nodes of u_θ and interpolated
+    /// linearly there, which is the error measured (5.3e-5 at α 0.3 up to θi = 81°); an NDF whose
+    /// rows differ (anisotropic) is not derived.
+    #[test]
+    fn the_projected_area_of_a_ggx_ndf_is_smiths() {
+        for alpha in [0.3f64, 0.6] {
+            let cols = 256;
+            let d: Vec<f32> = (0..cols)
+                .map(|x| {
+                    let u = x as f64 / (cols - 1) as f64;
+                    let t = (u * u * FRAC_PI_2).min(FRAC_PI_2 - 1e-6);
+                    let (c, t2) = (t.cos(), t.tan().powi(2));
+                    (alpha * alpha / (PI * c.powi(4) * (alpha * alpha + t2).powi(2))) as f32
+                })
+                .collect();
+            let ndf: Vec<f32> = d.iter().chain(&d).copied().collect();
+            let s = projected_area(&ndf, [2, cols], [2, 64]).unwrap();
+            assert_eq!(s.len(), 128);
+            assert_eq!(s[..64], s[64..]);
+            let mut worst = 0f64;
+            for (x, &got) in s[..58].iter().enumerate() {
+                let u = x as f64 / 63.0;
+                let t = u * u * FRAC_PI_2;
+                let lambda = ((1.0 + alpha * alpha * t.tan().powi(2)).sqrt() - 1.0) / 2.0;
+                let want = t.cos() * (1.0 + lambda);
+                worst = worst.max((got / want - 1.0).abs());
+            }
+            assert!(worst < 2e-4, "α {alpha}: worst relative error {worst:e}");
+        }
+        let mut aniso = vec![1.0f32; 2 * 8];
+        aniso[9] = 2.0;
+        assert!(projected_area(&aniso, [2, 8], [2, 8]).is_none());
     }
 
     #[test]

@@ -10,7 +10,7 @@
 //! the slices' angles ([`derived_vndf`]) when the header says `derived`, the luminance from
 //! `rgb` ([`luminance_of`]) when it says `derived`.
 
-use super::fields::{RawField, RglFields, derived_vndf, luminance_of};
+use super::fields::{RawField, RglFields, derived_vndf, luminance_of, projected_area};
 use crate::codec::tensor::TensorCoding;
 use crate::io::native::{self, MAX_HEADER, VERSION_MINOR};
 use crate::table::Provenance;
@@ -94,9 +94,22 @@ pub struct PackedHeader {
     /// The `luminance` field (when the file has one): stored or derived from `rgb`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub luminance: Option<FieldForm>,
+    /// The `sigma` field, when derived from the NDF: its shape `[rows, cols]` and the constant
+    /// its projected area is multiplied by ([`derived_sigma`]); stored when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<DerivedSigma>,
     /// Bytes of the stored fields' zstd block at the start of `DATA`, and decompressed.
     pub stored_bytes: usize,
     pub stored_raw_bytes: usize,
+}
+
+/// A `sigma` field the reader derives: [`projected_area`] of the NDF on a grid of `shape`,
+/// times `scale`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DerivedSigma {
+    pub shape: Vec<usize>,
+    pub scale: f64,
 }
 
 /// What a packed file holds of the VNDF.
@@ -128,6 +141,9 @@ pub struct PackOptions {
     pub vndf: VndfPacking,
     /// Leave the luminance out (the reader derives it from `rgb`).
     pub derive_luminance: bool,
+    /// Leave `sigma` out: the reader derives it from the NDF times this constant
+    /// ([`sigma_scale`]).
+    pub derive_sigma: Option<f64>,
 }
 
 impl PackOptions {
@@ -138,6 +154,7 @@ impl PackOptions {
             coding: TensorCoding::Lossless,
             vndf: VndfPacking::Stored,
             derive_luminance: false,
+            derive_sigma: None,
         }
     }
 }
@@ -236,6 +253,103 @@ fn derive(fields: &RglFields, shape: &[usize], what: &str) -> Result<Vec<f32>> {
     Ok(derived_vndf(&phi_i, &theta_i, &ndf, [rows, cols], h, w))
 }
 
+/// Largest relative deviation between a file's `sigma` and its NDF's projected area times
+/// one constant for which `sigma` is left for the reader to derive. The four public files
+/// deviate by at most 1.5e-4; the planner also measures the derived form against the source.
+pub const SIGMA_TOLERANCE: f64 = 1e-3;
+
+/// The constant c with `sigma` = c × [`projected_area`] of the NDF at every node within
+/// [`SIGMA_TOLERANCE`] (c: the geometric mean of the ratios), or `None`: an anisotropic NDF,
+/// or a `sigma` made another way.
+pub fn sigma_scale(fields: &RglFields, what: &str) -> Result<Option<f64>> {
+    let Some(sigma) = fields.get("sigma") else {
+        return Ok(None);
+    };
+    if fields.get("ndf").is_none() || sigma.shape.len() != 2 {
+        return Ok(None);
+    }
+    let Some(d) = sigma_of(fields, &sigma.shape, 1.0, what)? else {
+        return Ok(None);
+    };
+    let s = fields.f32_of("sigma", what)?;
+    if s.len() != d.len()
+        || !s.iter().all(|v| v.is_finite() && *v > 0.0)
+        || !d.iter().all(|v| v.is_finite() && *v > 0.0)
+    {
+        return Ok(None);
+    }
+    let c = (s
+        .iter()
+        .zip(&d)
+        .map(|(&s, &d)| (f64::from(s) / d).ln())
+        .sum::<f64>()
+        / s.len() as f64)
+        .exp();
+    let fits = s
+        .iter()
+        .zip(&d)
+        .all(|(&s, &d)| (c * d / f64::from(s) - 1.0).abs() <= SIGMA_TOLERANCE);
+    Ok(fits.then_some(c))
+}
+
+/// The projected area of the fields' NDF on a `sigma` grid of `shape`, times `scale`: `None`
+/// unless the NDF is isotropic and `shape` is its own `[rows, cols]` with 2 ≤ cols ≤
+/// [`MAX_DERIVED_SIGMA_COLUMNS`] (the measured files' shape; a larger grid is refused rather
+/// than integrated: the work grows as cols², and a header could ask for any shape).
+fn sigma_of(
+    fields: &RglFields,
+    shape: &[usize],
+    scale: f64,
+    what: &str,
+) -> Result<Option<Vec<f64>>> {
+    let ndf_field = fields.require("ndf", what)?;
+    let [rows, cols] = match (&ndf_field.shape[..], shape) {
+        (&[r, c], &[sr, sc])
+            if r == sr && c == sc && r >= 1 && (2..=MAX_DERIVED_SIGMA_COLUMNS).contains(&c) =>
+        {
+            [r, c]
+        }
+        _ => return Ok(None),
+    };
+    let ndf = fields.f32_of("ndf", what)?;
+    if let Some(v) = ndf.iter().find(|v| !v.is_finite()) {
+        return Err(Error::invalid_file(
+            what,
+            format!("a value {v} of `ndf` is not finite"),
+        ));
+    }
+    Ok(projected_area(&ndf, [rows, cols], [rows, cols])
+        .map(|d| d.into_iter().map(|v| v * scale).collect()))
+}
+
+/// Widest NDF whose `sigma` is derived ([`sigma_of`]): the RGL database's files have 128
+/// columns.
+pub const MAX_DERIVED_SIGMA_COLUMNS: usize = 4096;
+
+/// The fields with `sigma` replaced by its derivation from their NDF times `scale`: what a
+/// reader of a file packed with `derive_sigma` evaluates.
+pub fn with_derived_sigma(fields: &RglFields, scale: f64, what: &str) -> Result<RglFields> {
+    let shape = fields.require("sigma", what)?.shape.clone();
+    let v = derived_sigma(fields, &shape, scale, what)?;
+    let mut out = fields.clone();
+    out.put(RawField::f32("sigma", shape, &v), usize::MAX);
+    Ok(out)
+}
+
+/// The derived `sigma` of `shape`, in f32 (as stored).
+fn derived_sigma(fields: &RglFields, shape: &[usize], scale: f64, what: &str) -> Result<Vec<f32>> {
+    let v = sigma_of(fields, shape, scale, what)?.ok_or_else(|| {
+        Error::invalid_file(
+            what,
+            format!(
+                "`sigma` of shape {shape:?} is derived, but the NDF is not isotropic, not of that \
+                 shape, or wider than {MAX_DERIVED_SIGMA_COLUMNS} columns"
+            ),
+        )
+    })?;
+    Ok(v.into_iter().map(|x| x as f32).collect())
+}
+
 /// The packed file of `fields` (an RGL file's, validated by its reader).
 pub fn to_bytes(
     fields: &RglFields,
@@ -281,6 +395,13 @@ pub fn to_bytes(
     if derive_luminance {
         stored.take("luminance");
     }
+    let sigma = match opts.derive_sigma {
+        Some(scale) => stored.take("sigma").map(|(_, f)| DerivedSigma {
+            shape: f.shape,
+            scale,
+        }),
+        None => None,
+    };
     let raw = stored.to_tensor_bytes();
     let z = zstd::bulk::compress(&raw, STORED_LEVEL)
         .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?;
@@ -311,6 +432,7 @@ pub fn to_bytes(
                 FieldForm::Stored
             }
         }),
+        sigma,
         stored_bytes: z.len(),
         stored_raw_bytes: raw.len(),
     };
@@ -502,6 +624,15 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
             })?;
             let v = derive(&stored, &shape, &what)?;
             Some(RawField::f32(name, shape, &v))
+        } else if let (true, Some(d)) = (name == "sigma", &h.sigma) {
+            if !d.scale.is_finite() || d.scale <= 0.0 {
+                return Err(bad(format!(
+                    "header field `sigma.scale` = {} is not a positive number",
+                    d.scale
+                )));
+            }
+            let v = derived_sigma(&stored, &d.shape, d.scale, &what)?;
+            Some(RawField::f32(name, d.shape.clone(), &v))
         } else if name == "luminance" && h.luminance == Some(FieldForm::Derived) {
             if h.colour.name != "rgb" || channels != 3 {
                 return Err(bad(
