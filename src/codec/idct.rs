@@ -448,8 +448,8 @@ pub(crate) fn decode(
     }
 }
 
-/// [`decode`] of boxes the caller keeps (the rate control's quantized codes, still being
-/// entropy-coded beside the measurement): the same bits. The tiled decode of a MERL-grid
+/// [`decode`] of boxes the caller keeps (the rate control's quantized codes, measured
+/// without a decode of the payload they were coded into): the same bits. The tiled decode of a MERL-grid
 /// table reads the codes where they are; the other paths take a copy.
 pub(crate) fn decode_of(
     comps: &[Coefficients],
@@ -503,9 +503,8 @@ pub(crate) fn decode_cells(
     expand_and_finish(comps, codes, &orders, steps, dims, fin, valid, cells, out);
 }
 
-/// [`decode_cells`] of boxes the caller keeps (the rate control's quantized codes, still
-/// being entropy-coded beside the measurement): the same bits, without their payload's
-/// decode. A box with mostly nonzero codes is copied for its first pass.
+/// [`decode_cells`] of boxes the caller keeps (the rate control's quantized codes): the
+/// same bits, without their payload's decode. A box with mostly nonzero codes is copied for its first pass.
 pub(crate) fn decode_cells_of(
     comps: &[Coefficients],
     steps: &[f64],

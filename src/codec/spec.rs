@@ -633,7 +633,7 @@ impl CodecSpec {
 
     /// [`CodecSpec::decode_into_with`] of the quantized boxes `comps` the payload codes (the
     /// bits a reader gets from the payload): the rate control measures a candidate from its
-    /// codes while they are entropy-coded, instead of decoding the payload after.
+    /// codes instead of decoding the payload they were coded into.
     pub(crate) fn decode_of(
         &self,
         comps: &[dct::Coefficients],

@@ -13,7 +13,7 @@ use super::rate::{Effort, Progress, accepts};
 use crate::codec::coefcode::DEFAULT_DEADZONE;
 use crate::codec::tensor::TensorCoding;
 use crate::io::rgl::RglBsdf;
-use crate::io::rgl::fields::RawField;
+use crate::io::rgl::fields::{RawField, RglFields};
 use crate::io::rgl::packed::{
     self, PackOptions, VndfPacking, colour_dims, colour_name, decode_vndf, vndf_dims,
     with_derived_vndf,
@@ -300,7 +300,7 @@ pub fn plan_rgl(
     // when it may win: when half of a fast level's size of its two large fields is below the
     // coded file (level 19 gains some 5–20% over level 3 on f32 values, never a factor 2).
     let t = Instant::now();
-    let exact = if lossless_may_win(fields, what, bytes.len())? {
+    let exact = if lossless_may_win(fields, bytes.len())? {
         Some(exact_file(&PackOptions::lossless())?)
     } else {
         None
@@ -328,24 +328,15 @@ pub fn plan_rgl(
 /// its colour tensor and VNDF (all but a few KB of it) compressed at zstd's fast level 3 and
 /// halved (level 19, which the lossless file uses, never halves level 3's size on f32
 /// values) fall below `coded`.
-fn lossless_may_win(
-    fields: &crate::io::rgl::fields::RglFields,
-    what: &str,
-    coded: usize,
-) -> Result<bool> {
+fn lossless_may_win(fields: &RglFields, coded: usize) -> Result<bool> {
     let mut fast = 0usize;
     for name in [colour_name(fields), "vndf"] {
-        if fields.get(name).is_none() {
-            continue;
+        // The field's little-endian bytes: what the lossless coding compresses (f32 fields).
+        if let Some(f) = fields.get(name) {
+            fast += zstd::bulk::compress(&f.data, 3)
+                .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?
+                .len();
         }
-        let raw: Vec<u8> = fields
-            .f32_of(name, what)?
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect();
-        fast += zstd::bulk::compress(&raw, 3)
-            .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))?
-            .len();
     }
     Ok(fast / 2 < coded)
 }
