@@ -998,3 +998,61 @@ fn hostile_headers_and_payloads_are_errors_not_panics() {
     let p = lossless.encode(&t).unwrap();
     assert!(lossless.decode(&p[..p.len() - 1], &layout).is_err());
 }
+
+#[test]
+fn the_refined_fill_from_the_kept_fill_is_the_refined_fill_of_the_plane() {
+    // A pass changes only the invalid cells, so the coefficients plus the DCT of the change
+    // are the DCT of the changed plane: the same coefficients as the pass that transforms
+    // the plane back and forth, to the f32 rounding of those transforms, for one and two
+    // passes and the relaxed and plain fill.
+    let t = ggx_on("halfdiff3:16x12x24");
+    assert!(t.valid().iter().any(|&v| !v), "the grid has invalid cells");
+    let dims = t.grid().shape();
+    let spec = CodecRequest::parse("dct:step=0.02")
+        .unwrap()
+        .resolve(&t)
+        .unwrap();
+    let plane = filled_plane(&t, spec.transform().unwrap(), 0);
+    let fill = fill_of(&plane, t.valid());
+    assert_eq!(fill.len(), t.valid().iter().filter(|&&v| !v).count());
+    let coef: Vec<f32> = dct::forward(&plane, &dims)
+        .iter()
+        .map(|&c| c as f32)
+        .collect();
+    let largest = coef.iter().fold(0f32, |m, c| m.max(c.abs()));
+    let step = 0.02 * largest as f64;
+    for (passes, relaxation) in [(1, 1.0), (1, FILL_RELAXATION), (2, FILL_RELAXATION)] {
+        let both_ways = refine_coefficients_f32(
+            coef.clone(),
+            &dims,
+            t.valid(),
+            step,
+            0.75,
+            passes,
+            relaxation,
+        );
+        let from_fill = refine_coefficients_from_fill(
+            coef.clone(),
+            &dims,
+            t.valid(),
+            &fill,
+            step,
+            0.75,
+            passes,
+            relaxation,
+        );
+        let moved = both_ways
+            .iter()
+            .zip(&coef)
+            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        let apart = both_ways
+            .iter()
+            .zip(&from_fill)
+            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(moved > 1e-3 * largest, "{passes} passes moved {moved}");
+        assert!(
+            apart < 1e-5 * largest,
+            "{passes} passes: {apart} of {largest}"
+        );
+    }
+}

@@ -33,8 +33,8 @@ use crate::codec::domain::Domain;
 use crate::codec::transform::{Curve, Transform};
 use crate::codec::{
     CodecRequest, CodecSpec, DecodeScratch, FILL_RELAXATION, Layout, dct, dct_coefficients_for,
-    filled_plane, filled_planes_f32, filled_planes_f32_in_place, refine_coefficients_f32,
-    transform_with_curve_held,
+    fill_of, filled_plane, filled_planes_f32, filled_planes_f32_in_place, refine_coefficients_f32,
+    refine_coefficients_from_fill, transform_with_curve_held,
 };
 use crate::simd::dispatch;
 use crate::table::Table;
@@ -296,6 +296,7 @@ pub struct Prepared {
     floor: Option<Vec<f64>>,
     transform: Transform,
     coefs: Vec<Vec<f32>>,
+    fills: Fills,
     max_coef: f64,
     seconds: f64,
 }
@@ -324,7 +325,7 @@ pub fn prepare_coefficients(
     let t = Instant::now();
     let floor = floor_beside(floor, curve_scale);
     let eps = curve_eps(table.channels().len(), epsilon, scale, floor.as_deref());
-    let (transform, coefs, max_coef) =
+    let (transform, coefs, fills, max_coef) =
         transform_and_coefficients(table, &eps, has_negative(table), true, progress);
     Some(Prepared {
         scale,
@@ -332,6 +333,7 @@ pub fn prepare_coefficients(
         floor,
         transform,
         coefs,
+        fills,
         max_coef,
         seconds: t.elapsed().as_secs_f64(),
     })
@@ -503,12 +505,14 @@ fn encode(
             Some(p.scale) == scale && p.epsilon == est.epsilon() && p.floor == curve_floor
         });
         let seconds_before = made.as_ref().map_or(0.0, |p| p.seconds);
-        let (transform, coefs, max_coef) = match made {
-            Some(p) => (p.transform, p.coefs, p.max_coef),
+        let (transform, coefs, fills, max_coef) = match made {
+            Some(p) => (p.transform, p.coefs, p.fills, p.max_coef),
             None => match &mut access {
                 // Lent samples read once: the plane is made in their memory.
                 Access::Lend(t, _) if lend && plane_in_samples(t) => {
-                    transform_and_coefficients_in_samples(t, &eps, has_negative, progress)
+                    let (transform, coefs, max_coef) =
+                        transform_and_coefficients_in_samples(t, &eps, has_negative, progress);
+                    (transform, coefs, None, max_coef)
                 }
                 // A later curve (raised, or the first made again) is made beside the
                 // estimator's stencils, which the first was made before: its KLT reads the
@@ -555,6 +559,7 @@ fn encode(
                 layout: &layout,
                 transform: &transform,
                 coefs: &coefs,
+                fills: fills.as_deref(),
                 max_coef,
                 variant: *v,
                 decoded: &mut decoded,
@@ -861,16 +866,20 @@ fn raised_curve(
 /// and their files their bytes).
 const F32_PLANE_CELLS: usize = 1 << 23;
 
+/// Each plane's values at the invalid cells before its DCT ([`fill_of`]), when kept.
+type Fills = Option<Vec<Vec<f32>>>;
+
 /// The curve's transform at `scale` × the metrics' ε `epsilon` and its DCT coefficients in
 /// f32, with the largest |c| of the f64 ones (of the f32 ones for a plane over
-/// [`F32_PLANE_CELLS`]).
+/// [`F32_PLANE_CELLS`]), and for the planes made in f64 on a grid with invalid cells their
+/// fill ([`Fills`], for the refined fill).
 fn transform_and_coefficients(
     table: &Table,
     eps: &[f64],
     has_negative: bool,
     hold_samples: bool,
     progress: Progress,
-) -> (Transform, Vec<Vec<f32>>, f64) {
+) -> (Transform, Vec<Vec<f32>>, Fills, f64) {
     let transform = curve_transform(table, eps, has_negative, hold_samples, progress);
     progress("forward DCT");
     let c = table.channels().len();
@@ -889,16 +898,25 @@ fn transform_and_coefficients(
     let mut max_coef = 0.0f64;
     if table.grid().cells() > F32_PLANE_CELLS {
         let (coefs, max_coef) = forward_f32(filled_planes_f32(table, &transform), &dims);
-        return (transform, coefs, max_coef);
+        return (transform, coefs, None, max_coef);
     }
+    // The fill of the invalid cells is kept for the refined fill (a pass then transforms
+    // only its change; 1.4 MB a plane on the MERL grid).
+    let valid = table.valid();
+    let any_invalid = valid.iter().any(|&v| !v);
+    let mut fills = Vec::new();
     let coefs: Vec<Vec<f32>> = (0..c)
         .map(|k| {
-            let f = dct::forward_owned(filled_plane(table, &transform, k), &dims);
+            let plane = filled_plane(table, &transform, k);
+            if any_invalid {
+                fills.push(fill_of(&plane, valid));
+            }
+            let f = dct::forward_owned(plane, &dims);
             max_coef = f.iter().fold(max_coef, |m, c| m.max(c.abs()));
             f.iter().map(|&c| c as f32).collect()
         })
         .collect();
-    (transform, coefs, max_coef)
+    (transform, coefs, any_invalid.then_some(fills), max_coef)
 }
 
 /// Whether the candidates of `table` are decoded at the estimator's cells alone: 1 or 3
@@ -1020,6 +1038,8 @@ struct Control<'a> {
     /// The DCT coefficients in f32 (see [`encode_within`]) and the largest |c| of the f64
     /// ones.
     coefs: &'a [Vec<f32>],
+    /// Each plane's values at the invalid cells before its DCT ([`fill_of`]), when kept.
+    fills: Option<&'a [Vec<f32>]>,
     max_coef: f64,
     variant: Variant,
     decoded: &'a mut Vec<f32>,
@@ -1061,6 +1081,7 @@ impl Control<'_> {
             })
             .collect();
         let mse_max = mse(self.coefs, f64::INFINITY, self.variant.deadzone);
+        let errors = LargeCoefficients::of(self.coefs);
         let max_coef = self.max_coef;
         // Steps below this would need more than 2^29 levels for the largest coefficient.
         let s_min = (max_coef / (1u64 << 29) as f64).max(1e-9);
@@ -1088,7 +1109,7 @@ impl Control<'_> {
             } else if target >= mse_max {
                 s_max
             } else {
-                step_for_mse(self.coefs, self.variant.deadzone, target, s_min, s_max)
+                step_for_mse(&errors, self.variant.deadzone, target, s_min, s_max)
             };
             if let Some(f) = fail_step
                 && s >= f * 0.99
@@ -1141,6 +1162,8 @@ impl Control<'_> {
                 break;
             }
         }
+        // Not held beside the refined fill's planes.
+        drop(errors);
         // Nothing accepted yet: keep halving below the smallest failing step before the
         // caller falls back to the lossless chain.
         let mut s = fail_step.unwrap_or(s_max);
@@ -1286,16 +1309,29 @@ impl Control<'_> {
         let codes: Vec<_> = self
             .coefs
             .iter()
-            .map(|plane| {
-                let refined = refine_coefficients_f32(
-                    plane.clone(),
-                    &dims,
-                    self.table.valid(),
-                    s,
-                    v.deadzone,
-                    v.refine_once,
-                    relaxation,
-                );
+            .enumerate()
+            .map(|(k, plane)| {
+                let refined = match self.fills {
+                    Some(fills) => refine_coefficients_from_fill(
+                        plane.clone(),
+                        &dims,
+                        self.table.valid(),
+                        &fills[k],
+                        s,
+                        v.deadzone,
+                        v.refine_once,
+                        relaxation,
+                    ),
+                    None => refine_coefficients_f32(
+                        plane.clone(),
+                        &dims,
+                        self.table.valid(),
+                        s,
+                        v.deadzone,
+                        v.refine_once,
+                        relaxation,
+                    ),
+                };
                 coefcode::quantize_deadzone(&refined, &dims, s, v.deadzone)
             })
             .collect();
@@ -1551,16 +1587,96 @@ fn quantization_error_lanes(ch: &[f32], s: f64, threshold: f64) -> f64 {
     ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
 }
 
+/// The coefficients of [`mse`] split for the bisection of [`step_for_mse`], which evaluates
+/// D a dozen times per rate-control step: a coefficient below a step's dead zone contributes
+/// its own square whatever the step, so the small ones (all but about
+/// 1/[`LARGE_SHARE`] of them) are summed once and only the large ones are quantized at each
+/// step. Steps whose dead zone starts below the small ones' bound are measured in full.
+struct LargeCoefficients<'a> {
+    coefs: &'a [Vec<f32>],
+    /// Every coefficient of magnitude below this is one of the small ones.
+    small_below: f64,
+    /// Σ c² of the small ones.
+    small_sq: f64,
+    /// The others, in plane and coefficient order.
+    large: Vec<f32>,
+    count: usize,
+}
+
+/// About one coefficient in this many is kept as a large one.
+const LARGE_SHARE: usize = 16;
+
+impl<'a> LargeCoefficients<'a> {
+    fn of(coefs: &'a [Vec<f32>]) -> LargeCoefficients<'a> {
+        // The bound is a power of two, from a histogram of the magnitudes' binary exponents:
+        // the smallest one above which at most 1/LARGE_SHARE of the coefficients lie.
+        let exponent = |c: f32| ((c.to_bits() >> 23) & 0xff) as usize;
+        let mut counts = [0usize; 256];
+        let count: usize = coefs.iter().map(Vec::len).sum();
+        for c in coefs.iter().flatten() {
+            counts[exponent(*c)] += 1;
+        }
+        let mut cut = 256;
+        let mut above = 0;
+        while cut > 1 && above + counts[cut - 1] <= count / LARGE_SHARE {
+            above += counts[cut - 1];
+            cut -= 1;
+        }
+        // Exponent `cut` and above are large (255: infinities and NaNs, which a finite
+        // table's coefficients never are, would be large too).
+        let small_below = f32::from_bits((cut.min(255) as u32) << 23) as f64;
+        let mut small_sq = 0.0;
+        let mut large = Vec::with_capacity(above);
+        for &c in coefs.iter().flatten() {
+            if exponent(c) >= cut {
+                large.push(c);
+            } else {
+                small_sq += c as f64 * c as f64;
+            }
+        }
+        LargeCoefficients {
+            coefs,
+            small_below,
+            small_sq,
+            large,
+            count,
+        }
+    }
+
+    /// [`mse`] at step `s`: the same value up to the order of the sum.
+    fn mse(&self, s: f64, deadzone: f64) -> f64 {
+        const CHUNK: usize = 1 << 15;
+        let threshold = deadzone.max(0.5) * s;
+        if threshold.is_nan() || threshold < self.small_below {
+            return mse(self.coefs, s, deadzone);
+        }
+        let parts: Vec<f64> = self
+            .large
+            .par_chunks(CHUNK)
+            .map(|ch| quantization_error(ch, s, threshold))
+            .collect();
+        (self.small_sq + parts.iter().sum::<f64>()) / self.count.max(1) as f64
+    }
+}
+
+/// An upper bound of D(s) that needs no coefficient: each one's error is at most the dead
+/// zone's threshold (inside it) or half a step (outside), and the threshold is at least that.
+fn mse_bound(s: f64, deadzone: f64) -> f64 {
+    let threshold = deadzone.max(0.5) * s;
+    threshold * threshold
+}
+
 /// The largest step in [lo, hi] with D(step) ≤ `target` (bisection in log step; D grows with
 /// the step up to quantization's ripples, which 30 halvings resolve well below 1%).
-fn step_for_mse(coefs: &[Vec<f32>], deadzone: f64, target: f64, lo: f64, hi: f64) -> f64 {
+fn step_for_mse(coefs: &LargeCoefficients, deadzone: f64, target: f64, lo: f64, hi: f64) -> f64 {
     let (mut lo, mut hi) = (lo.ln(), hi.ln());
-    if mse(coefs, lo.exp(), deadzone) > target {
+    let within = |s: f64| mse_bound(s, deadzone) <= target || coefs.mse(s, deadzone) <= target;
+    if !within(lo.exp()) {
         return lo.exp();
     }
     for _ in 0..30 {
         let mid = 0.5 * (lo + hi);
-        if mse(coefs, mid.exp(), deadzone) <= target {
+        if within(mid.exp()) {
             lo = mid;
         } else {
             hi = mid;
@@ -1591,6 +1707,43 @@ mod tests {
 
     /// The lanes of D(s) give one sum on every CPU (the AVX2 copy against the portable one)
     /// and the serial sum's value; the dead zone and an infinite step as defined.
+    #[test]
+    fn the_bisections_error_of_the_large_coefficients_is_the_whole_one() {
+        // Heavy-tailed coefficients over many octaves in two planes: D(s) from the small
+        // ones' sum and the large ones is D(s) over all of them to the order of the sums, at
+        // steps whose dead zone lies above the small ones' bound and (measured in full)
+        // below it; the bound needing no coefficient is never below D.
+        let mut rng = crate::math::SplitMix64::new(5);
+        let planes: Vec<Vec<f32>> = (0..2)
+            .map(|_| {
+                (0..50_001)
+                    .map(|_| {
+                        let m = (rng.next_f64() * 30.0 - 20.0).exp2();
+                        (if rng.next_f64() < 0.5 { -m } else { m }) as f32
+                    })
+                    .collect()
+            })
+            .collect();
+        let large = LargeCoefficients::of(&planes);
+        let count = 2 * 50_001;
+        assert!(large.large.len() <= count / LARGE_SHARE && large.large.len() > count / 64);
+        let mut below = 0;
+        for k in -24..12 {
+            let s = (k as f64).exp2() * 1.3;
+            let whole = mse(&planes, s, 0.75);
+            let split = large.mse(s, 0.75);
+            below += (0.75 * s < large.small_below) as usize;
+            assert!(
+                (split - whole).abs() <= 1e-12 * whole,
+                "step {s}: {split} {whole}"
+            );
+            assert!(mse_bound(s, 0.75) >= whole, "step {s}");
+        }
+        assert!(below > 3, "steps measured in full: {below}");
+        let inf = large.mse(f64::INFINITY, 0.75);
+        assert!((inf - mse(&planes, f64::INFINITY, 0.75)).abs() <= 1e-12 * inf);
+    }
+
     #[test]
     fn the_quantization_error_in_lanes_is_the_serial_sum() {
         let mut rng = crate::math::SplitMix64::new(3);
