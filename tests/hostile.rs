@@ -1541,3 +1541,59 @@ fn a_table_without_one_valid_cell_is_refused_by_the_planner() {
     assert_refused(&o, &["dark.binary", "invalid"]);
     assert!(!d.join("c.bpk").exists());
 }
+
+/// A packed RGL file whose header asks for a derived VNDF of an absurd shape: the reader
+/// rebuilds that field from the NDF, so nothing stored bounds it. H = W = 2^32 made the
+/// shape's product wrap to 0, which passed the budget, and the derivation ran until memory
+/// ran out (exit 1 after 30 s and 4.2 GB, a ~2 KB file); a shape within the cap was counted
+/// at 4 bytes a value and took 5.8 GB (2^28 values, exit 0 after 15 s). Both are refused at
+/// once now, exit 2 naming the file and the field.
+#[test]
+fn a_packed_rgl_header_cannot_ask_for_an_endless_derived_vndf() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let fixture =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/ggx-packed-line-ends.bpk");
+    let base = std::fs::read(fixture).unwrap();
+    let mut secs = sections(&base);
+    let mut head: serde_json::Value =
+        serde_json::from_slice(&zstd::decode_all(&secs[0].1[..]).unwrap()).unwrap();
+    // The colour payload alone after the stored fields: the VNDF is derived, not coded.
+    let colour_end =
+        (head["stored_bytes"].as_u64().unwrap() + head["colour_bytes"].as_u64().unwrap()) as usize;
+    secs[1].1.truncate(colour_end);
+    let obj = head.as_object_mut().unwrap();
+    obj.remove("vndf_coding");
+    obj.remove("colour_bytes");
+    obj.insert("vndf".into(), "derived".into());
+    for (name, shape, needle) in [
+        ("ok.bpk", [1u64, 4, 16, 16], None),
+        (
+            "wrap.bpk",
+            [1, 4, 1 << 32, 1 << 32],
+            Some("larger than any RGL file"),
+        ),
+        (
+            "wrap2.bpk",
+            [1, 4, 1 << 62, 4],
+            Some("larger than any RGL file"),
+        ),
+        ("big.bpk", [1, 4, 2, 1 << 25], Some("needs about 6.0 GiB")),
+    ] {
+        head["vndf_shape"] = serde_json::json!(shape);
+        let mut s = secs.clone();
+        s[0] = (*b"HEAD", serde_json::to_vec(&head).unwrap());
+        std::fs::write(d.join(name), assemble(&base, &s)).unwrap();
+        let start = std::time::Instant::now();
+        let o = run_capped(d, 1 << 20, &["inspect", name]);
+        match needle {
+            None => assert!(o.status.success(), "{name}: {}", stderr(&o)),
+            Some(n) => assert_refused(&o, &[name, "vndf", n]),
+        }
+        assert!(
+            start.elapsed().as_secs() < 5,
+            "{name}: {:?}",
+            start.elapsed()
+        );
+    }
+}
