@@ -1597,3 +1597,52 @@ fn a_packed_rgl_header_cannot_ask_for_an_endless_derived_vndf() {
         );
     }
 }
+
+/// Optical constants from a CSV file (`nk=@file.csv`) are held to the range of the
+/// parameters they replace (`eta`, `k`, `eta_re`, `eta_im`: at most 1e6). n = k = 1e308 made
+/// the Fresnel term overflow: `eval` printed 1.7976931348623157e308 (exit 0) for a conductor
+/// whose f is 2.635, and `props` said "0 non-finite value(s) ... albedo inf".
+#[test]
+fn optical_constants_beyond_the_parameter_range_are_refused_naming_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("huge.csv"),
+        "wavelength_nm,n,k\n400,1,2\n700,1e308,1e308\n",
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("edge.csv"),
+        "wavelength_nm,n,k\n400,1e6,1e6\n700,1e6,1e6\n",
+    )
+    .unwrap();
+    let pair = ["--wi-deg", "30,0", "--wo-deg", "30,180"];
+    for spec in [
+        "ggx:alpha=0.2,fresnel=conductor,nk=@huge.csv,wavelengths_nm=400/550/700",
+        "htsg:nk=@huge.csv,wavelengths_nm=400/550/700",
+    ] {
+        for cmd in ["eval", "props"] {
+            let mut args = vec![cmd, spec];
+            if cmd == "eval" {
+                args.extend_from_slice(&pair);
+            }
+            let o = run(d, &args);
+            assert_refused(&o, &["huge.csv", "line 3", "n = 1e308", "[0, 1e6]"]);
+            assert!(
+                o.stdout.is_empty(),
+                "{}",
+                String::from_utf8_lossy(&o.stdout)
+            );
+        }
+    }
+    let spec = "ggx:alpha=0.2,fresnel=conductor,nk=@edge.csv,wavelengths_nm=400/550/700";
+    let o = run(d, &[&["eval", spec][..], &pair].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let f: f64 = String::from_utf8_lossy(&o.stdout)
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(f > 2.0 && f < 3.0, "{f}");
+}
