@@ -408,7 +408,7 @@ impl SpectrumToRgb {
         for (i, &w) in wavelengths_nm.iter().enumerate() {
             if !(w.is_finite() && w > 0.0) {
                 return Err(Error::input(format!(
-                    "spectral to RGB: wavelength[{i}] = {w} nm; expected a finite value > 0"
+                    "spectral to RGB: wavelength[{i}] = {w:?} nm; expected a finite value > 0"
                 )));
             }
         }

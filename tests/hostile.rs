@@ -1646,3 +1646,61 @@ fn optical_constants_beyond_the_parameter_range_are_refused_naming_the_line() {
         .unwrap();
     assert!(f > 2.0 && f < 3.0, "{f}");
 }
+
+/// A header number at f64's edges is quoted in short form: `dct dead zone 1e300`, not the
+/// 301 digits `{}` gives an f64 (which filled the error line up to its 2000-character cut
+/// for the dead zone, Tucker's factor_step, the log interpolation scale and θmax).
+#[test]
+fn header_numbers_at_the_edges_of_f64_are_quoted_in_short_form() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let dct = tabulate(
+        d,
+        "d.bpk",
+        "lambert",
+        "halfdiff3:4",
+        &["--codec", "dct:step=0.01"],
+    );
+    let tucker = tabulate(
+        d,
+        "k.bpk",
+        "lambert",
+        "halfdiff3:4",
+        &["--codec", "tucker:ranks=2x2x4"],
+    );
+    let plain = tabulate(d, "p.bpk", "lambert", "halfdiff3:4", &[]);
+    type Edit = fn(&mut serde_json::Value);
+    let cases: [(&PathBuf, Edit, &str); 4] = [
+        (
+            &dct,
+            |h| h["codec"]["coding"]["deadzone"] = 1e300.into(),
+            "dead zone 1e300",
+        ),
+        (
+            &tucker,
+            |h| h["codec"]["tucker"]["factor_step"] = (-1e300).into(),
+            "factor_step -1e300",
+        ),
+        (
+            &plain,
+            |h| h["grid"]["interp_space"] = serde_json::json!({"log": {"scale": 1e-320}}),
+            "scale 1e-320",
+        ),
+        (
+            &plain,
+            |h| h["grid"]["theta_max_deg"] = 1e300.into(),
+            "theta-max = 1e300",
+        ),
+    ];
+    for (k, (base, edit, needle)) in cases.into_iter().enumerate() {
+        let name = format!("edge{k}.bpk");
+        std::fs::write(
+            d.join(&name),
+            lying_native(&std::fs::read(base).unwrap(), edit),
+        )
+        .unwrap();
+        let o = run(d, &["inspect", &name]);
+        assert_refused(&o, &[&name, needle]);
+        assert!(stderr(&o).len() < 300, "{}", stderr(&o));
+    }
+}
