@@ -1703,4 +1703,20 @@ fn header_numbers_at_the_edges_of_f64_are_quoted_in_short_form() {
         assert_refused(&o, &[&name, needle]);
         assert!(stderr(&o).len() < 300, "{}", stderr(&o));
     }
+    // A requested residual step too small for the table (`uniform quantizer: value ... /
+    // step 0.000...` before).
+    let o = run(
+        d,
+        &[
+            "compress",
+            "p.bpk",
+            "--codec",
+            "dct:step=0.01,residual=1e-300",
+            "-o",
+            "r.bpk",
+        ],
+    );
+    assert_refused(&o, &["step 1e-300 exceeds 2^30 levels"]);
+    assert!(stderr(&o).len() < 300, "{}", stderr(&o));
+    assert!(!d.join("r.bpk").exists());
 }
