@@ -119,6 +119,11 @@ pub const SRGB_PRIMARIES_XY: [[f64; 2]; 3] = [[0.64, 0.33], [0.30, 0.60], [0.15,
 /// Row limit of an optical-constants file.
 const MAX_NK_ROWS: usize = 100_000;
 
+/// Largest n or k an optical-constants file may give: the range of the parameters they
+/// replace (`eta`, `k` of a conductor, `eta_re`, `eta_im` of HTSG). A file of n = k = 1e308
+/// made the Fresnel term overflow: `eval` printed f = 1.7977e308 where 2.635 was due.
+pub const MAX_NK: f64 = 1e6;
+
 /// True when the channels are spectral samples (they carry wavelengths).
 pub fn is_spectral(channels: &Channels) -> bool {
     channels.wavelengths_nm().is_some()
@@ -257,14 +262,20 @@ impl OpticalConstants {
                     .parse()
                     .map_err(|_| bad(line, format!("{name} = {f:?} is not a number")))?;
                 // n and k may be 0 (an ideal lossless medium, a perfect conductor's n); λ not.
-                let ok = x.is_finite() && if name == "λ" { x > 0.0 } else { x >= 0.0 };
+                let ok = x.is_finite()
+                    && if name == "λ" {
+                        x > 0.0
+                    } else {
+                        (0.0..=MAX_NK).contains(&x)
+                    };
                 if !ok {
                     return Err(bad(
                         line,
-                        format!(
-                            "{name} = {f} is out of range; expected a finite value {}",
-                            if name == "λ" { "> 0" } else { ">= 0" }
-                        ),
+                        if name == "λ" {
+                            format!("{name} = {f} is out of range; expected a finite value > 0")
+                        } else {
+                            format!("{name} = {f} is out of range; expected a value in [0, 1e6]")
+                        },
                     ));
                 }
                 *slot = x;
@@ -397,7 +408,7 @@ impl SpectrumToRgb {
         for (i, &w) in wavelengths_nm.iter().enumerate() {
             if !(w.is_finite() && w > 0.0) {
                 return Err(Error::input(format!(
-                    "spectral to RGB: wavelength[{i}] = {w} nm; expected a finite value > 0"
+                    "spectral to RGB: wavelength[{i}] = {w:?} nm; expected a finite value > 0"
                 )));
             }
         }

@@ -1541,3 +1541,182 @@ fn a_table_without_one_valid_cell_is_refused_by_the_planner() {
     assert_refused(&o, &["dark.binary", "invalid"]);
     assert!(!d.join("c.bpk").exists());
 }
+
+/// A packed RGL file whose header asks for a derived VNDF of an absurd shape: the reader
+/// rebuilds that field from the NDF, so nothing stored bounds it. H = W = 2^32 made the
+/// shape's product wrap to 0, which passed the budget, and the derivation ran until memory
+/// ran out (exit 1 after 30 s and 4.2 GB, a ~2 KB file); a shape within the cap was counted
+/// at 4 bytes a value and took 5.8 GB (2^28 values, exit 0 after 15 s). Both are refused at
+/// once now, exit 2 naming the file and the field.
+#[test]
+fn a_packed_rgl_header_cannot_ask_for_an_endless_derived_vndf() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let fixture =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/ggx-packed-line-ends.bpk");
+    let base = std::fs::read(fixture).unwrap();
+    let mut secs = sections(&base);
+    let mut head: serde_json::Value =
+        serde_json::from_slice(&zstd::decode_all(&secs[0].1[..]).unwrap()).unwrap();
+    // The colour payload alone after the stored fields: the VNDF is derived, not coded.
+    let colour_end =
+        (head["stored_bytes"].as_u64().unwrap() + head["colour_bytes"].as_u64().unwrap()) as usize;
+    secs[1].1.truncate(colour_end);
+    let obj = head.as_object_mut().unwrap();
+    obj.remove("vndf_coding");
+    obj.remove("colour_bytes");
+    obj.insert("vndf".into(), "derived".into());
+    for (name, shape, needle) in [
+        ("ok.bpk", [1u64, 4, 16, 16], None),
+        (
+            "wrap.bpk",
+            [1, 4, 1 << 32, 1 << 32],
+            Some("larger than any RGL file"),
+        ),
+        (
+            "wrap2.bpk",
+            [1, 4, 1 << 62, 4],
+            Some("larger than any RGL file"),
+        ),
+        ("big.bpk", [1, 4, 2, 1 << 25], Some("needs about 6.0 GiB")),
+    ] {
+        head["vndf_shape"] = serde_json::json!(shape);
+        let mut s = secs.clone();
+        s[0] = (*b"HEAD", serde_json::to_vec(&head).unwrap());
+        std::fs::write(d.join(name), assemble(&base, &s)).unwrap();
+        let start = std::time::Instant::now();
+        let o = run_capped(d, 1 << 20, &["inspect", name]);
+        match needle {
+            None => assert!(o.status.success(), "{name}: {}", stderr(&o)),
+            Some(n) => assert_refused(&o, &[name, "vndf", n]),
+        }
+        assert!(
+            start.elapsed().as_secs() < 5,
+            "{name}: {:?}",
+            start.elapsed()
+        );
+    }
+}
+
+/// Optical constants from a CSV file (`nk=@file.csv`) are held to the range of the
+/// parameters they replace (`eta`, `k`, `eta_re`, `eta_im`: at most 1e6). n = k = 1e308 made
+/// the Fresnel term overflow: `eval` printed 1.7976931348623157e308 (exit 0) for a conductor
+/// whose f is 2.635, and `props` said "0 non-finite value(s) ... albedo inf".
+#[test]
+fn optical_constants_beyond_the_parameter_range_are_refused_naming_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("huge.csv"),
+        "wavelength_nm,n,k\n400,1,2\n700,1e308,1e308\n",
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("edge.csv"),
+        "wavelength_nm,n,k\n400,1e6,1e6\n700,1e6,1e6\n",
+    )
+    .unwrap();
+    let pair = ["--wi-deg", "30,0", "--wo-deg", "30,180"];
+    for spec in [
+        "ggx:alpha=0.2,fresnel=conductor,nk=@huge.csv,wavelengths_nm=400/550/700",
+        "htsg:nk=@huge.csv,wavelengths_nm=400/550/700",
+    ] {
+        for cmd in ["eval", "props"] {
+            let mut args = vec![cmd, spec];
+            if cmd == "eval" {
+                args.extend_from_slice(&pair);
+            }
+            let o = run(d, &args);
+            assert_refused(&o, &["huge.csv", "line 3", "n = 1e308", "[0, 1e6]"]);
+            assert!(
+                o.stdout.is_empty(),
+                "{}",
+                String::from_utf8_lossy(&o.stdout)
+            );
+        }
+    }
+    let spec = "ggx:alpha=0.2,fresnel=conductor,nk=@edge.csv,wavelengths_nm=400/550/700";
+    let o = run(d, &[&["eval", spec][..], &pair].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let f: f64 = String::from_utf8_lossy(&o.stdout)
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(f > 2.0 && f < 3.0, "{f}");
+}
+
+/// A header number at f64's edges is quoted in short form: `dct dead zone 1e300`, not the
+/// 301 digits `{}` gives an f64 (which filled the error line up to its 2000-character cut
+/// for the dead zone, Tucker's factor_step, the log interpolation scale and θmax).
+#[test]
+fn header_numbers_at_the_edges_of_f64_are_quoted_in_short_form() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let dct = tabulate(
+        d,
+        "d.bpk",
+        "lambert",
+        "halfdiff3:4",
+        &["--codec", "dct:step=0.01"],
+    );
+    let tucker = tabulate(
+        d,
+        "k.bpk",
+        "lambert",
+        "halfdiff3:4",
+        &["--codec", "tucker:ranks=2x2x4"],
+    );
+    let plain = tabulate(d, "p.bpk", "lambert", "halfdiff3:4", &[]);
+    type Edit = fn(&mut serde_json::Value);
+    let cases: [(&PathBuf, Edit, &str); 4] = [
+        (
+            &dct,
+            |h| h["codec"]["coding"]["deadzone"] = 1e300.into(),
+            "dead zone 1e300",
+        ),
+        (
+            &tucker,
+            |h| h["codec"]["tucker"]["factor_step"] = (-1e300).into(),
+            "factor_step -1e300",
+        ),
+        (
+            &plain,
+            |h| h["grid"]["interp_space"] = serde_json::json!({"log": {"scale": 1e-320}}),
+            "scale 1e-320",
+        ),
+        (
+            &plain,
+            |h| h["grid"]["theta_max_deg"] = 1e300.into(),
+            "theta-max = 1e300",
+        ),
+    ];
+    for (k, (base, edit, needle)) in cases.into_iter().enumerate() {
+        let name = format!("edge{k}.bpk");
+        std::fs::write(
+            d.join(&name),
+            lying_native(&std::fs::read(base).unwrap(), edit),
+        )
+        .unwrap();
+        let o = run(d, &["inspect", &name]);
+        assert_refused(&o, &[&name, needle]);
+        assert!(stderr(&o).len() < 300, "{}", stderr(&o));
+    }
+    // A requested residual step too small for the table (`uniform quantizer: value ... /
+    // step 0.000...` before).
+    let o = run(
+        d,
+        &[
+            "compress",
+            "p.bpk",
+            "--codec",
+            "dct:step=0.01,residual=1e-300",
+            "-o",
+            "r.bpk",
+        ],
+    );
+    assert_refused(&o, &["step 1e-300 exceeds 2^30 levels"]);
+    assert!(stderr(&o).len() < 300, "{}", stderr(&o));
+    assert!(!d.join("r.bpk").exists());
+}

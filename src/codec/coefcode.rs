@@ -123,7 +123,7 @@ impl ContextCoding {
         if !(lo..=hi).contains(&self.deadzone) {
             return Err(Error::input(format!(
                 "dct dead zone {}: expected {lo}..={hi} steps",
-                self.deadzone
+                crate::model::params::fmt_num(self.deadzone)
             )));
         }
         Ok(())

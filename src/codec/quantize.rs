@@ -95,7 +95,7 @@ impl Quantizer {
                 let q = ((y - origin[k]) / step[k]).round();
                 if q.abs() > MAX_Q {
                     return Err(Error::input(format!(
-                        "uniform quantizer: value {y} / step {} exceeds 2^30 levels",
+                        "uniform quantizer: value {y:e} / step {:e} exceeds 2^30 levels",
                         step[k]
                     )));
                 }

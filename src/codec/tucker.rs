@@ -88,7 +88,7 @@ impl TuckerStage {
         if !(lo..=hi).contains(&self.factor_step) {
             return Err(Error::input(format!(
                 "tucker factor_step {}: need a number in {lo}..={hi}",
-                self.factor_step
+                crate::model::params::fmt_num(self.factor_step)
             )));
         }
         Ok(())

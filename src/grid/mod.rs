@@ -366,7 +366,8 @@ impl InterpSpace {
             Ok(InterpSpace::Log { scale })
         } else {
             Err(Error::input(format!(
-                "interpolation space log: scale {scale} is not a finite positive number"
+                "interpolation space log: scale {} is not a finite positive number",
+                crate::model::params::fmt_num(scale)
             )))
         }
     }
@@ -445,7 +446,8 @@ impl Grid {
             }
             Some(d) => {
                 return Err(Error::input(format!(
-                    "grid: theta-max = {d} is out of range (0, 90] degrees"
+                    "grid: theta-max = {} is out of range (0, 90] degrees",
+                    crate::model::params::fmt_num(d)
                 )));
             }
         };

@@ -455,7 +455,14 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Table> {
                 .ok_or_else(|| {
                     Error::invalid_file(
                         path,
-                        "header says mask explicit but there is no MASK section",
+                        format!(
+                            "header says mask {} but there is no MASK section",
+                            if h.mask == MaskKind::Explicit {
+                                "explicit"
+                            } else {
+                                "geometric_xor"
+                            }
+                        ),
                     )
                 })?
                 .1;

@@ -247,11 +247,31 @@ fn derive(fields: &RglFields, shape: &[usize], what: &str) -> Result<Vec<f32>> {
             "a value {v} of `phi_i`, `theta_i` or `ndf` is not finite"
         )));
     }
-    let cells = (phi_i.len() * theta_i.len()) as u64 * (h * w) as u64;
-    crate::memory::require("the derived VNDF", cells.saturating_mul(4))
-        .map_err(|e| bad(e.to_string()))?;
+    // The shape is the header's word alone (no stored byte bounds it): its product is checked
+    // (`h * w` wrapped to 0 for H = W = 2^32, passed the budget, and the loop below ran until
+    // memory ran out), capped at an RGL file's VNDF, and counted with the reader's copies.
+    let cells = [phi_i.len(), theta_i.len(), h, w]
+        .iter()
+        .try_fold(1u64, |a, &d| a.checked_mul(d as u64))
+        .filter(|&n| n <= super::MAX_FILE_BYTES / 4)
+        .ok_or_else(|| {
+            bad(format!(
+                "derived `vndf` shape {shape:?} is larger than any RGL file's VNDF"
+            ))
+        })?;
+    crate::memory::require(
+        "the derived `vndf`",
+        cells.saturating_mul(VNDF_READ_BYTES_PER_VALUE),
+    )
+    .map_err(|e| bad(e.to_string()))?;
     Ok(derived_vndf(&phi_i, &theta_i, &ndf, [rows, cols], h, w))
 }
+
+/// Bytes a rebuilt VNDF value costs the reader at its peak: the f32 value, its field's bytes,
+/// the tensor file [`super::RglBsdf::from_fields`] makes of the fields, the validated copy
+/// and the warp's tables (measured: 21.5 bytes a value for a derived VNDF of 2^26 and 2^28
+/// values; 4 bytes were counted, so a 2 KB file declaring 2^28 values took 5.8 GB).
+const VNDF_READ_BYTES_PER_VALUE: u64 = 24;
 
 /// Largest relative deviation between a file's `sigma` and its NDF's projected area times
 /// one constant for which `sigma` is left for the reader to derive. The four public files
@@ -586,8 +606,11 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
                     ))
                 })?;
             let n: usize = dims.iter().product();
-            crate::memory::require("the packed RGL VNDF", (n as u64).saturating_mul(16))
-                .map_err(|e| bad(e.to_string()))?;
+            crate::memory::require(
+                "the packed RGL VNDF",
+                (n as u64).saturating_mul(VNDF_READ_BYTES_PER_VALUE),
+            )
+            .map_err(|e| bad(e.to_string()))?;
             let v = decode_vndf(coding, vndf_payload, &dims)
                 .map_err(|e| bad(format!("field `vndf`: {e}")))?;
             Some(RawField::f32("vndf", shape.clone(), &v))
