@@ -869,6 +869,9 @@ const F32_PLANE_CELLS: usize = 1 << 23;
 /// Each plane's values at the invalid cells before its DCT ([`fill_of`]), when kept.
 type Fills = Option<Vec<Vec<f32>>>;
 
+/// The fill is kept for grids of at most this many cells (the MERL grid has 1,458,000).
+const FILL_KEPT_CELLS: usize = 1 << 21;
+
 /// The curve's transform at `scale` × the metrics' ε `epsilon` and its DCT coefficients in
 /// f32, with the largest |c| of the f64 ones (of the f32 ones for a plane over
 /// [`F32_PLANE_CELLS`]), and for the planes made in f64 on a grid with invalid cells their
@@ -901,14 +904,16 @@ fn transform_and_coefficients(
         return (transform, coefs, None, max_coef);
     }
     // The fill of the invalid cells is kept for the refined fill (a pass then transforms
-    // only its change; 1.4 MB a plane on the MERL grid).
+    // only its change; 1.4 MB a plane on the MERL grid), up to FILL_KEPT_CELLS: a larger
+    // table's fill would raise the peak of a planner bounded by twice the table plus 64 MB
+    // (`compress` of a 128×128×256 RGB table: 165 → 172 MiB, tests/hostile.rs).
     let valid = table.valid();
-    let any_invalid = valid.iter().any(|&v| !v);
+    let keep_fill = valid.len() <= FILL_KEPT_CELLS && valid.iter().any(|&v| !v);
     let mut fills = Vec::new();
     let coefs: Vec<Vec<f32>> = (0..c)
         .map(|k| {
             let plane = filled_plane(table, &transform, k);
-            if any_invalid {
+            if keep_fill {
                 fills.push(fill_of(&plane, valid));
             }
             let f = dct::forward_owned(plane, &dims);
@@ -916,7 +921,7 @@ fn transform_and_coefficients(
             f.iter().map(|&c| c as f32).collect()
         })
         .collect();
-    (transform, coefs, any_invalid.then_some(fills), max_coef)
+    (transform, coefs, keep_fill.then_some(fills), max_coef)
 }
 
 /// Whether the candidates of `table` are decoded at the estimator's cells alone: 1 or 3
@@ -1081,7 +1086,6 @@ impl Control<'_> {
             })
             .collect();
         let mse_max = mse(self.coefs, f64::INFINITY, self.variant.deadzone);
-        let errors = LargeCoefficients::of(self.coefs);
         let max_coef = self.max_coef;
         // Steps below this would need more than 2^29 levels for the largest coefficient.
         let s_min = (max_coef / (1u64 << 29) as f64).max(1e-9);
@@ -1109,7 +1113,7 @@ impl Control<'_> {
             } else if target >= mse_max {
                 s_max
             } else {
-                step_for_mse(&errors, self.variant.deadzone, target, s_min, s_max)
+                step_for_mse(self.coefs, self.variant.deadzone, target, s_min, s_max)
             };
             if let Some(f) = fail_step
                 && s >= f * 0.99
@@ -1162,8 +1166,6 @@ impl Control<'_> {
                 break;
             }
         }
-        // Not held beside the refined fill's planes.
-        drop(errors);
         // Nothing accepted yet: keep halving below the smallest failing step before the
         // caller falls back to the lossless chain.
         let mut s = fail_step.unwrap_or(s_max);
@@ -1668,7 +1670,11 @@ fn mse_bound(s: f64, deadzone: f64) -> f64 {
 
 /// The largest step in [lo, hi] with D(step) ≤ `target` (bisection in log step; D grows with
 /// the step up to quantization's ripples, which 30 halvings resolve well below 1%).
-fn step_for_mse(coefs: &LargeCoefficients, deadzone: f64, target: f64, lo: f64, hi: f64) -> f64 {
+fn step_for_mse(coefs: &[Vec<f32>], deadzone: f64, target: f64, lo: f64, hi: f64) -> f64 {
+    // Made for this bisection alone (two passes over the coefficients against its dozen),
+    // so that the large ones are not held beside the candidates' decodes, the rate
+    // control's peak.
+    let coefs = LargeCoefficients::of(coefs);
     let (mut lo, mut hi) = (lo.ln(), hi.ln());
     let within = |s: f64| mse_bound(s, deadzone) <= target || coefs.mse(s, deadzone) <= target;
     if !within(lo.exp()) {
