@@ -314,9 +314,9 @@ pub fn refine_coefficients_from_fill(
             if ok {
                 *d = 0.0;
             } else if let Some(v) = at.next() {
-                let step = relaxation * (*d - *v);
-                *v += step;
-                *d = step;
+                let moved = relaxation * (*d - *v);
+                *v += moved;
+                *d = moved;
             }
         }
         let change = dct::forward_owned_f32(change, dims);
