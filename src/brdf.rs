@@ -91,6 +91,17 @@ pub trait Brdf: Send + Sync {
     /// unit inputs.
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]);
 
+    /// [`Brdf::eval`] at many pairs: `out[p·C + c]` for pair `p` and channel `c`, the same
+    /// bits as one `eval` per pair. Sampled sources override it with their batched lookups
+    /// (the albedo quadrature of `check` evaluates a million pairs of a table this way).
+    /// Runs on the calling thread: callers are parallel over their own chunks.
+    fn eval_pairs(&self, pairs: &[(Vec3, Vec3)], out: &mut [f64]) {
+        let c = self.channels().len();
+        for (&(wi, wo), f) in pairs.iter().zip(out.chunks_exact_mut(c.max(1))) {
+            self.eval(wi, wo, f);
+        }
+    }
+
     /// True when f depends on the azimuths only through their difference.
     fn is_isotropic(&self) -> bool;
 

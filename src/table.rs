@@ -1882,6 +1882,9 @@ impl<T: std::borrow::Borrow<Table> + Send + Sync> Brdf for InterpolatedTable<T> 
     fn eval(&self, wi: Vec3, wo: Vec3, out: &mut [f64]) {
         self.t().eval_into(wi, wo, self.interp, out);
     }
+    fn eval_pairs(&self, pairs: &[(Vec3, Vec3)], out: &mut [f64]) {
+        self.t().eval_batch_serial(pairs, self.interp, out);
+    }
     fn is_isotropic(&self) -> bool {
         self.t().grid().kind().is_isotropic()
     }
