@@ -453,11 +453,19 @@ pub fn transform_with_curve_held(
 
 /// The predictor with the smallest estimated coded size (order-0 entropy of the residual byte
 /// planes) among [`predict::candidates`].
+///
+/// The candidates are scored in parallel, each from histograms filled as its residuals are
+/// made (a candidate's residuals were a table-sized array, made 20 times one after another:
+/// 40% of a MERL-grid lossless encode); the first smallest in candidate order wins, as in a
+/// serial scan.
 pub fn best_predictor(data: &[f32], shape: &Shape, d: usize) -> Result<Predictor> {
+    use rayon::prelude::*;
+    let scored: Vec<(f64, Predictor)> = predict::candidates(d, shape.channels)
+        .into_par_iter()
+        .map(|p| Ok((p.entropy_bits_f32(data, shape)?, p)))
+        .collect::<Result<_>>()?;
     let mut best: Option<(f64, Predictor)> = None;
-    for p in predict::candidates(d, shape.channels) {
-        let r = p.residuals_f32(data, shape)?;
-        let bits = predict::plane_entropy_bits(&r);
+    for (bits, p) in scored {
         if best.as_ref().is_none_or(|(b, _)| bits < *b) {
             best = Some((bits, p));
         }

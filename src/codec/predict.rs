@@ -243,6 +243,13 @@ impl Predictor {
         Ok(out)
     }
 
+    /// [`plane_entropy_bits`] of [`Predictor::residuals_f32`], without holding the residuals.
+    pub fn entropy_bits_f32(&self, data: &[f32], shape: &Shape) -> Result<f64> {
+        let mut hist = PlaneHistograms::default();
+        self.residuals_f32_each(data, shape, |r| hist.add(r))?;
+        Ok(hist.entropy_bits())
+    }
+
     /// [`Predictor::residuals_f32`] handed to `sink` one at a time, in order, without holding
     /// them (the encoder streams them to zstd).
     pub fn residuals_f32_each(
@@ -518,21 +525,51 @@ pub fn unshuffle(b: &[u8]) -> Result<Vec<u32>> {
 /// Order-0 entropy (bits) of the byte planes of `v`: a fast proxy for the coded size, used
 /// to choose a predictor without running the entropy coder on every candidate.
 pub fn plane_entropy_bits(v: &[u32]) -> f64 {
-    let mut total = 0.0;
-    for plane in 0..4 {
-        let mut hist = [0u64; 256];
-        for &x in v {
-            hist[(x >> (8 * plane)) as u8 as usize] += 1;
-        }
-        let n = v.len() as f64;
-        for &h in &hist {
-            if h > 0 {
-                let p = h as f64 / n;
-                total -= h as f64 * p.log2();
-            }
+    let mut hist = PlaneHistograms::default();
+    v.iter().for_each(|&x| hist.add(x));
+    hist.entropy_bits()
+}
+
+/// Byte histograms of the four planes of a stream of residuals: [`plane_entropy_bits`]
+/// without holding the stream.
+#[derive(Clone, Debug)]
+pub struct PlaneHistograms {
+    counts: [[u64; 256]; 4],
+    n: u64,
+}
+
+impl Default for PlaneHistograms {
+    fn default() -> Self {
+        PlaneHistograms {
+            counts: [[0; 256]; 4],
+            n: 0,
         }
     }
-    total
+}
+
+impl PlaneHistograms {
+    #[inline]
+    pub fn add(&mut self, x: u32) {
+        for (plane, hist) in self.counts.iter_mut().enumerate() {
+            hist[(x >> (8 * plane)) as u8 as usize] += 1;
+        }
+        self.n += 1;
+    }
+
+    /// The order-0 entropy of the planes, in bits (the sum over planes, in plane order).
+    pub fn entropy_bits(&self) -> f64 {
+        let n = self.n as f64;
+        let mut total = 0.0;
+        for hist in &self.counts {
+            for &h in hist {
+                if h > 0 {
+                    let p = h as f64 / n;
+                    total -= h as f64 * p.log2();
+                }
+            }
+        }
+        total
+    }
 }
 
 /// The candidate predictors for a grid of `d` axes, from simplest to richest.
@@ -748,6 +785,12 @@ mod tests {
             let p = &cands[which % cands.len()];
             let shape = Shape { dims: &dims, valid: &valid, channels: c };
             let r = p.residuals_f32(&data, &shape).unwrap();
+            // The streamed score is the held residuals' score, bit for bit (the lossless
+            // encoder picks its predictor by it).
+            prop_assert_eq!(
+                p.entropy_bits_f32(&data, &shape).unwrap().to_bits(),
+                plane_entropy_bits(&r).to_bits()
+            );
             let back = p.reconstruct_f32(&r, &shape).unwrap();
             prop_assert_eq!(back.len(), data.len());
             for (a, b) in back.iter().zip(&data) {

@@ -269,15 +269,22 @@ impl Scored {
                 (unordered, stencil, pairs)
             }
             _ => {
-                // (cell, pair) is unique, so any sort gives this order; the unstable one
-                // needs no buffer (this is the high-water mark of `compress`, below).
-                let mut order: Vec<u32> = (0..stencil.len() as u32).collect();
-                order.sort_unstable_by_key(|&i| key(i as usize));
-                // Stencil positions to pairs, in place.
-                for i in order.iter_mut() {
-                    *i = unordered[*i as usize];
-                }
+                // (cell, pair) is unique, so any sort gives this order. The keys are made
+                // once, packed in a u64 (cell above, pair below; a cell index fits in 32
+                // bits, `Table::stencil`, and "reads none" sorts last as before): a sort
+                // that called `first_cell` per comparison took 0.13 s of the MERL grid's
+                // 131,072 pairs. The unstable sort needs no buffer (this is the high-water
+                // mark of `compress`, below).
+                let mut keys: Vec<u64> = (0..stencil.len())
+                    .map(|i| {
+                        let (cell, pair) = key(i);
+                        (cell.min(u32::MAX as usize) as u64) << 32 | pair as u64
+                    })
+                    .collect();
                 drop(unordered);
+                keys.sort_unstable();
+                let order: Vec<u32> = keys.iter().map(|&k| k as u32).collect();
+                drop(keys);
                 // The stencils again, of the pairs in their new order, rather than a
                 // reordered copy: a pair's stencil depends on that pair alone
                 // (`Table::stencil`; tested in `table::tests`), and the set's two stencils are
