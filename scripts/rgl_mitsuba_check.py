@@ -9,7 +9,7 @@
    percentile).
 2. chi2: mitsuba.chi2.ChiSquareTest with the BSDF adapter (default significance 0.01) for
    θi in --chi2-theta (degrees); --chi2-ires sets the points per bin and axis of the test's
-   quadrature of pdf() (default 4, Mitsuba's).
+   quadrature of pdf() (default 4, Mitsuba's); --chi2-phi the azimuth of wi (default 0).
    --chi2-plugin JSON runs the same test on a Mitsuba plugin instead (e.g. roughconductor).
 3. --against-bsdf FILE: instead of a brdfpack source, compare with Mitsuba's evaluation of
    another .bsdf (the re-written RGL files): max and p99 of the fixture metric
@@ -87,12 +87,13 @@ def metrics(f, g, wi, wo):
     }
 
 
-def chi2(plugin, thetas, ires=4):
+def chi2(plugin, thetas, ires=4, phi=0.0):
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
     out = {}
+    ph = np.radians(phi)
     for t in thetas:
         th = np.radians(t)
-        wi = [float(np.sin(th)), 0.0, float(np.cos(th))]
+        wi = [float(np.sin(th) * np.cos(ph)), float(np.sin(th) * np.sin(ph)), float(np.cos(th))]
         sample, pdf = BSDFAdapter(plugin["type"], plugin, wi=wi)
         test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf,
                              sample_dim=3, ires=ires)
@@ -115,6 +116,9 @@ def main():
     ap.add_argument("--chi2-ires", type=int, default=4,
                     help="points per bin and axis of the test's trapezoid quadrature of pdf() "
                     "(Mitsuba's default 4; 16 resolves lobes narrower than a bin)")
+    ap.add_argument("--chi2-phi", type=float, default=0.0,
+                    help="azimuth of wi in degrees for the chi2 test (default 0: wi in the "
+                    "xz-plane)")
     ap.add_argument("--chi2-plugin", help="run the chi2 test on this Mitsuba BSDF (JSON dict, "
                     "e.g. roughconductor) instead of the file, to see what the test does with "
                     "Mitsuba's own material")
@@ -145,7 +149,9 @@ def main():
             plugin = json.loads(a.chi2_plugin)
             report["chi2_plugin"] = plugin
         report["chi2_ires"] = a.chi2_ires
-        report["chi2"] = chi2(plugin, [float(t) for t in a.chi2_theta.split(",")], a.chi2_ires)
+        report["chi2_phi"] = a.chi2_phi
+        report["chi2"] = chi2(plugin, [float(t) for t in a.chi2_theta.split(",")], a.chi2_ires,
+                              a.chi2_phi)
     print(json.dumps(report, indent=1))
 
 
