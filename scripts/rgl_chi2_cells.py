@@ -24,7 +24,6 @@ direction) × L(wo)/L(at the radius), L = luminance of f·cos θo of the brdfpac
 import argparse
 import json
 import os
-import subprocess
 import sys
 
 import numpy as np
@@ -33,6 +32,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, os.path.join(os.environ.get("BRDFPACK_SHARED", os.path.join(ROOT, "..", "shared")), "peers", "mitsuba"))
 import mitsuba_ref  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from rgl_mitsuba_check import brdfpack_eval  # noqa: E402
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
 
@@ -55,13 +57,7 @@ def smooth_pole(exe, source, wi, radius, keep):
     r = np.radians(radius)
 
     def lum_f_cos(wos):
-        lines = "\n".join(" ".join(repr(float(x)) for x in np.r_[wi, o]) for o in wos)
-        out = subprocess.run([exe, "eval", source], input=lines, capture_output=True, text=True)
-        if out.returncode != 0:
-            sys.exit("brdfpack eval failed: " + out.stderr)
-        f = np.array([[float(x) for x in l.split()] for l in out.stdout.strip().split("\n")])
-        if f.shape[1] == 1:
-            f = np.repeat(f, 3, axis=1)
+        f = brdfpack_eval(exe, source, np.repeat(np.asarray(wi)[None, :], len(wos), axis=0), wos)
         return f @ LUM * wos[:, 2]
 
     def wrap(pdf):
