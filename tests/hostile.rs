@@ -1759,3 +1759,95 @@ fn eval_angles_off_the_hemisphere_are_refused_naming_the_option() {
     };
     assert_eq!(at("30,370", "40,-530"), at("30,10", "40,-170"));
 }
+
+/// A small MERL-layout file (dims in the header) whose bins are all invalid (−1) but for
+/// `valid` (cell index, the same value in each channel).
+fn merl_with_valid_bins(dims: [i32; 3], valid: &[usize]) -> Vec<u8> {
+    let n: usize = dims.iter().map(|&d| d as usize).product();
+    let mut bytes: Vec<u8> = dims.iter().flat_map(|v| v.to_le_bytes()).collect();
+    for _ in 0..3 {
+        for cell in 0..n {
+            let v = if valid.contains(&cell) {
+                750.0f64
+            } else {
+                -1.0
+            };
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    bytes
+}
+
+/// `pack` with `--codec` (no budget, so the planner's refusal of a table without values was
+/// not reached) of a MERL file without one valid bin: it tabulated and checked every cell
+/// through the nearest-valid fallback and wrote a file of 0s (22–25 s for a 90×90×180 file
+/// with `--codec lossless --full-check`, exit 0). Refused up front now, exit 2, as `build`
+/// refuses such a material; a file with one valid bin still packs.
+#[test]
+fn packing_a_table_without_one_valid_cell_is_refused_up_front_with_any_codec() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("dark.binary"), merl_with_valid_bins([8, 8, 16], &[])).unwrap();
+    for codec in ["lossless", "dct:step=0.05"] {
+        let o = run(
+            d,
+            &[
+                "pack",
+                "dark.binary",
+                "--codec",
+                codec,
+                "--full-check",
+                "-o",
+                "dark.bpk",
+            ],
+        );
+        assert_refused(
+            &o,
+            &[
+                "dark.binary",
+                "every one of its 1024 cells is marked invalid",
+                "nothing to pack",
+                "no file written",
+            ],
+        );
+        assert!(!d.join("dark.bpk").exists());
+    }
+    std::fs::write(
+        d.join("m.toml"),
+        "[[material]]\nname = \"dark\"\nsource = \"dark.binary\"\ncodec = \"lossless\"\n\
+         outputs = [\"dark.bpk\"]\n",
+    )
+    .unwrap();
+    let o = run(d, &["build", "m.toml"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("material dark") && e.contains("nothing to pack"),
+        "{e}"
+    );
+    assert!(!d.join("dark.bpk").exists());
+    // One valid bin: packed on its own grid (its lookups find it, or nothing near, at once).
+    std::fs::write(
+        d.join("one.binary"),
+        merl_with_valid_bins([8, 8, 16], &[300]),
+    )
+    .unwrap();
+    let o = run(
+        d,
+        &[
+            "pack",
+            "one.binary",
+            "--grid",
+            "halfdiff3:8x8x16,warp=sqrt/linear/linear,at=edge",
+            "--codec",
+            "lossless",
+            "--full-check",
+            "--json",
+            "-o",
+            "one.bpk",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["valid_cells"], 1, "{v}");
+}
