@@ -1851,3 +1851,121 @@ fn packing_a_table_without_one_valid_cell_is_refused_up_front_with_any_codec() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["valid_cells"], 1, "{v}");
 }
+
+/// An RGL file shaped like `fixtures/rgl/tiny.bsdf` but with 4 θi slices of `n` × `n` colour
+/// samples, all 0 (a packed form of it is a few KB however large `n`).
+fn rgl_of_zeros(n: usize) -> Vec<u8> {
+    let b = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/tiny.bsdf"))
+        .unwrap();
+    let count = u32::from_le_bytes(b[14..18].try_into().unwrap()) as usize;
+    let mut pos = 18;
+    // (name, dtype, shape, data) in the file's order.
+    let mut fields: Vec<(String, u8, Vec<u64>, Vec<u8>)> = Vec::new();
+    for _ in 0..count {
+        let nl = u16::from_le_bytes(b[pos..pos + 2].try_into().unwrap()) as usize;
+        let name = String::from_utf8(b[pos + 2..pos + 2 + nl].to_vec()).unwrap();
+        pos += 2 + nl;
+        let nd = u16::from_le_bytes(b[pos..pos + 2].try_into().unwrap()) as usize;
+        let dtype = b[pos + 2];
+        let offset = u64::from_le_bytes(b[pos + 3..pos + 11].try_into().unwrap()) as usize;
+        pos += 11;
+        let shape: Vec<u64> = (0..nd)
+            .map(|k| u64::from_le_bytes(b[pos + 8 * k..pos + 8 * k + 8].try_into().unwrap()))
+            .collect();
+        pos += 8 * nd;
+        let size = if dtype == 1 { 1 } else { 4 };
+        let len = size * shape.iter().product::<u64>() as usize;
+        fields.push((name, dtype, shape, b[offset..offset + len].to_vec()));
+    }
+    let (slices, n64) = (4u64, n as u64);
+    for f in &mut fields {
+        match f.0.as_str() {
+            "theta_i" => {
+                f.2 = vec![slices];
+                f.3 = [0.0f32, 0.35, 0.7, 1.05]
+                    .iter()
+                    .flat_map(|v| v.to_le_bytes())
+                    .collect();
+            }
+            "vndf" => {
+                f.2[1] = slices;
+                f.3 = f.3.repeat(2);
+            }
+            "luminance" => {
+                f.2 = vec![1, slices, n64, n64];
+                f.3 = vec![0; 4 * 4 * n * n];
+            }
+            "rgb" => {
+                f.2 = vec![1, slices, 3, n64, n64];
+                f.3 = vec![0; 4 * 12 * n * n];
+            }
+            "valid" => {
+                f.2 = vec![n64 * n64];
+                f.3 = vec![1; n * n];
+            }
+            _ => {}
+        }
+    }
+    let head: usize = 18
+        + fields
+            .iter()
+            .map(|f| 13 + f.0.len() + 8 * f.2.len())
+            .sum::<usize>();
+    let mut offset = head.div_ceil(8) * 8;
+    let mut out = b[..14].to_vec();
+    out.extend_from_slice(&(fields.len() as u32).to_le_bytes());
+    for f in &fields {
+        out.extend_from_slice(&(f.0.len() as u16).to_le_bytes());
+        out.extend_from_slice(f.0.as_bytes());
+        out.extend_from_slice(&(f.2.len() as u16).to_le_bytes());
+        out.push(f.1);
+        out.extend_from_slice(&(offset as u64).to_le_bytes());
+        for s in &f.2 {
+            out.extend_from_slice(&s.to_le_bytes());
+        }
+        offset += f.3.len().div_ceil(8) * 8;
+    }
+    out.resize(head.div_ceil(8) * 8, 0);
+    for f in &fields {
+        out.extend_from_slice(&f.3);
+        out.resize(out.len().div_ceil(8) * 8, 0);
+    }
+    out
+}
+
+/// The memory a packed RGL colour tensor is counted at covers what reading it takes: 16
+/// bytes a value were counted while `inspect` peaked at ~18.9 (`[1, 4, 3, 2048, 2048]` of
+/// zeros, a 9 KB file: 915 MiB for 768 MiB counted). With `[1, 4, 3, 1024, 1024]`: peak RSS
+/// 234 MiB, counted 192 MiB before and 240 MiB now.
+#[test]
+fn a_packed_rgl_colour_tensor_is_counted_at_what_its_read_takes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("z.bsdf"), rgl_of_zeros(1024)).unwrap();
+    let o = run(
+        d,
+        &["pack", "z.bsdf", "--codec", "lossless", "-o", "z.bpk", "-q"],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::metadata(d.join("z.bpk")).unwrap().len() < 100_000);
+    // The count, from the refusal under a budget that admits the stored fields (the
+    // luminance and flags, 17 MiB).
+    let o = run(d, &["--max-memory", "32M", "inspect", "z.bpk"]);
+    assert_refused(&o, &["z.bpk", "the packed RGL colour tensor needs about"]);
+    let e = stderr(&o);
+    let mib: f64 = e
+        .split("needs about ")
+        .nth(1)
+        .and_then(|r| r.split(" MiB").next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("{e}"));
+    assert_eq!(mib, 240.0, "{e}");
+    // The read's peak (the process's own ~8 MiB included) within the count and 16 MiB.
+    let (code, kib) = peak_rss_kib_with(d, &[], &["inspect", "z.bpk"]);
+    assert_eq!(code, 0);
+    println!("inspect of a packed [1, 4, 3, 1024, 1024]: peak RSS {kib} KiB, counted {mib} MiB");
+    assert!(
+        (kib as f64) <= (mib + 16.0) * 1024.0,
+        "peak {kib} KiB > counted {mib} MiB + 16 MiB"
+    );
+}
