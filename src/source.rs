@@ -80,6 +80,8 @@ impl Source {
                     &bytes,
                     &path.display().to_string(),
                 )?)),
+                // A source may also be an RGL file: the list says so.
+                Format::Unknown => Err(io::unknown_format(&bytes, path, true)),
                 _ => Ok(Source::Table(io::decode_table(&bytes, path)?)),
             };
         }

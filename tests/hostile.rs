@@ -1969,3 +1969,82 @@ fn a_packed_rgl_colour_tensor_is_counted_at_what_its_read_takes() {
         "peak {kib} KiB > counted {mib} MiB + 16 MiB"
     );
 }
+
+/// Messages that left out what the user needs: a truncated MERL file on stdin was "unknown
+/// format (...): expected a brdfpack table (.bpk), a brdfpack EXR, a MERL .binary or an MDL
+/// .mbsdf file" (from a file, MERL's size error), a list without the RGL `.bsdf` that `eval -`
+/// reads; and a native table whose header gives a wavelength of −1 nm was read, then refused
+/// by `convert --to-rgb` as "spectral to RGB: wavelength[0] = -1 nm" without the file's name.
+#[test]
+fn stream_and_wavelength_errors_name_what_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pair = ["--wi", "0,0,1", "--wo", "0,0,1"];
+    let eval_stdin = |bytes: &[u8]| {
+        std::fs::write(d.join("in"), bytes).unwrap();
+        brdfpack()
+            .current_dir(d)
+            .args(["eval", "-"])
+            .args(pair)
+            .stdin(std::fs::File::open(d.join("in")).unwrap())
+            .output()
+            .unwrap()
+    };
+    // MERL's standard dims and too few values: MERL's own error, as from a file.
+    let mut merl: Vec<u8> = [90i32, 90, 180]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    merl.extend_from_slice(&0.5f64.to_le_bytes());
+    let o = eval_stdin(&merl);
+    assert_refused(&o, &["does not match dims", "truncated"]);
+    std::fs::write(d.join("short.binary"), &merl).unwrap();
+    let o = run(
+        d,
+        &["eval", "short.binary", "--wi", "0,0,1", "--wo", "0,0,1"],
+    );
+    assert_refused(&o, &["short.binary", "does not match dims", "truncated"]);
+    // Bytes of no known format: every format a source may be is listed, RGL's too (`eval`
+    // and `inspect` read it).
+    let o = eval_stdin(b"not a brdf at all");
+    assert_refused(
+        &o,
+        &[
+            "unknown format (17 bytes)",
+            "a MERL .binary, an RGL .bsdf or an MDL .mbsdf file",
+        ],
+    );
+    let o = run(d, &["inspect", "in"]);
+    assert_refused(&o, &["in: unknown format (17 bytes)", "an RGL .bsdf"]);
+    // A wavelength that is no length: refused where the file is read, naming it.
+    let base = std::fs::read(tabulate(
+        d,
+        "sp.bpk",
+        "lambert:albedo=0.5,wavelengths_nm=450/550/650",
+        "halfdiff3:4",
+        &[],
+    ))
+    .unwrap();
+    for (w, shown) in [(-1.0, "-1.0"), (0.0, "0.0"), (-1e300, "-1e300")] {
+        std::fs::write(
+            d.join("neg.bpk"),
+            lying_native(&base, |h| h["channels"]["wavelengths_nm"][0] = w.into()),
+        )
+        .unwrap();
+        for args in [
+            vec!["convert", "neg.bpk", "--to-rgb", "-o", "rgb.bpk"],
+            vec!["inspect", "neg.bpk"],
+        ] {
+            let o = run(d, &args);
+            assert_refused(
+                &o,
+                &[
+                    "neg.bpk",
+                    &format!("wavelength[0] = {shown} nm (channel \"450nm\")"),
+                    "expected a finite value > 0",
+                ],
+            );
+        }
+        assert!(!d.join("rgb.bpk").exists());
+    }
+}

@@ -658,13 +658,27 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
             let v = derive(&stored, &shape, &what)?;
             Some(RawField::f32(name, shape, &v))
         } else if let (true, Some(d)) = (name == "sigma", &h.sigma) {
+            let scale = crate::model::params::fmt_num(d.scale);
             if !d.scale.is_finite() || d.scale <= 0.0 {
                 return Err(bad(format!(
-                    "header field `sigma.scale` = {} is not a positive number",
-                    d.scale
+                    "header field `sigma.scale` = {scale} is not a positive number"
                 )));
             }
             let v = derived_sigma(&stored, &d.shape, d.scale, &what)?;
+            // The scale is the header's word: one that takes the NDF's projected area out of
+            // f32's positive range makes every value 0 (or inf), which the RGL reader then
+            // reported as "field `sigma`: value #0 is 0e0" without naming the scale.
+            if let Some((i, x)) = v
+                .iter()
+                .enumerate()
+                .find(|(_, x)| !(x.is_finite() && **x > 0.0))
+            {
+                return Err(bad(format!(
+                    "header field `sigma.scale` = {scale} makes the derived `sigma` value #{i} \
+                     {x:e} in f32 (the NDF's projected area times the scale); expected a \
+                     scale that keeps it finite and > 0"
+                )));
+            }
             Some(RawField::f32(name, d.shape.clone(), &v))
         } else if name == "luminance" && h.luminance == Some(FieldForm::Derived) {
             if h.colour.name != "rgb" || channels != 3 {
