@@ -34,8 +34,8 @@ fn eval_rgb_random_pairs(bencher: Bencher, spec: &str) {
     });
 }
 
-/// Both directions normal: the largest g = (4πσ0/λ)², the most series terms (1,430 in blue
-/// at σ0 = 3 µm).
+/// Both directions normal: the largest g = (4πσ0/λ)² (1,430 series terms in blue at
+/// σ0 = 3 µm one by one; 36 since they are summed at a stride, docs/htsg.md).
 #[divan::bench(args = SPECS)]
 fn eval_rgb_both_normal(bencher: Bencher, spec: &str) {
     let m = Model::parse(spec).unwrap();

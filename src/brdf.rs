@@ -50,14 +50,26 @@ impl Channels {
                 )));
             }
         }
-        if let Some(w) = &wavelengths_nm
-            && w.len() != names.len()
-        {
-            return Err(crate::Error::input(format!(
-                "{} wavelengths given for {} channels",
-                w.len(),
-                names.len()
-            )));
+        if let Some(w) = &wavelengths_nm {
+            if w.len() != names.len() {
+                return Err(crate::Error::input(format!(
+                    "{} wavelengths given for {} channels",
+                    w.len(),
+                    names.len()
+                )));
+            }
+            // A file's header may say anything: a wavelength that is no length is refused
+            // where the file is read (its reader names the file), not at a later conversion.
+            if let Some((i, x)) = w
+                .iter()
+                .enumerate()
+                .find(|(_, x)| !(x.is_finite() && **x > 0.0))
+            {
+                return Err(crate::Error::input(format!(
+                    "wavelength[{i}] = {x:?} nm (channel {:?}); expected a finite value > 0",
+                    names[i]
+                )));
+            }
         }
         Ok(Channels {
             names,

@@ -20,6 +20,37 @@ pub fn unit_direction(v: [f64; 3], name: &str) -> Result<Vec3, String> {
         .ok_or_else(|| format!("{name} has zero length (expected a direction)"))
 }
 
+/// A unit direction from polar and azimuth angles in degrees (`eval --wi-deg THETA,PHI`).
+/// θ is measured from the normal and must lie in [0°, 90°]: 90° is the horizon, where every
+/// source gives 0 ([`Vec3::from_spherical`] places it at z = 0 exactly); a θ beyond it names no
+/// direction of the upper hemisphere and is refused rather than folded back. φ may be any
+/// finite value: it is reduced modulo 360° first (`%`, exact in f64), so 1e308 is the angle
+/// its residue names and every |φ| < 360° is used as given (the same bits as before).
+/// The error names the offending angle and the accepted range.
+pub fn direction_from_degrees(theta_deg: f64, phi_deg: f64) -> Result<Vec3, String> {
+    if !(0.0..=90.0).contains(&theta_deg) {
+        return Err(format!(
+            "θ = {} is out of range; expected a polar angle in [0, 90] degrees (90 is the \
+             horizon)",
+            crate::model::params::fmt_num(theta_deg)
+        ));
+    }
+    if !phi_deg.is_finite() {
+        return Err(format!(
+            "φ = {phi_deg} is not a finite angle; expected an azimuth in degrees"
+        ));
+    }
+    let phi_deg = if phi_deg.abs() < 360.0 {
+        phi_deg
+    } else {
+        phi_deg % 360.0
+    };
+    Ok(Vec3::from_spherical(
+        theta_deg.to_radians(),
+        phi_deg.to_radians(),
+    ))
+}
+
 /// A pair above the horizon but beyond the source's stored θmax has no value
 /// (docs/parameterizations.md): the reason, or `None` when the pair may be evaluated. Pairs
 /// below the horizon are always allowed (their value is 0).
@@ -326,6 +357,38 @@ mod tests {
         assert_eq!(e, "wo has zero length (expected a direction)");
         let e = unit_direction([f64::NAN, 0.0, 1.0], "wi").unwrap_err();
         assert_eq!(e, "wi has a NaN or infinite component");
+    }
+
+    #[test]
+    fn degrees_keep_theta_on_the_hemisphere_and_reduce_phi() {
+        let d = |t: f64, p: f64| direction_from_degrees(t, p).map(|v| v.to_array());
+        // The horizon is allowed and exactly z = 0; the normal is (0, 0, 1).
+        assert_eq!(d(90.0, 0.0).unwrap()[2], 0.0);
+        assert_eq!(d(0.0, 123.0).unwrap(), [0.0, 0.0, 1.0]);
+        assert_eq!(d(-0.0, 0.0).unwrap(), [0.0, 0.0, 1.0]);
+        // Below the normal's 0 and past the horizon: refused, naming the angle and the range.
+        for (t, shown) in [
+            (-10.0, "-10"),
+            (90.000001, "90.000001"),
+            (1e308, "1e308"),
+            (-1e-300, "-1e-300"),
+        ] {
+            let e = d(t, 0.0).unwrap_err();
+            assert!(
+                e.starts_with(&format!("θ = {shown} is out of range")),
+                "{e}"
+            );
+            assert!(e.contains("[0, 90] degrees"), "{e}");
+        }
+        // φ below 360° in magnitude is used as given; beyond, its residue (exact in f64).
+        assert_eq!(d(30.0, 370.0).unwrap(), d(30.0, 10.0).unwrap());
+        assert_eq!(d(30.0, -370.0).unwrap(), d(30.0, -10.0).unwrap());
+        let r = 1e308 % 360.0;
+        assert!((0.0..360.0).contains(&r));
+        assert_eq!(d(30.0, 1e308).unwrap(), d(30.0, r).unwrap());
+        let v = d(30.0, 1e308).unwrap();
+        assert!((v[0].hypot(v[1]) - 0.5).abs() < 1e-15 && (v[2] - 0.75f64.sqrt()).abs() < 1e-15);
+        assert!(d(30.0, f64::INFINITY).is_err() && d(30.0, f64::NAN).is_err());
     }
 
     #[test]

@@ -70,6 +70,9 @@ pub struct Table {
     cos: CosCache,
     /// The vectorized angle maps of a half/difference grid, built on the first lookup.
     angles: AnglesCache,
+    /// The index range of the valid cells on each axis, built on the first nearest-valid
+    /// fallback.
+    bounds: BoundsCache,
 }
 
 impl Table {
@@ -122,6 +125,7 @@ impl Table {
             bits: BitsCache::default(),
             cos: CosCache::default(),
             angles: AnglesCache::default(),
+            bounds: BoundsCache::default(),
         })
     }
 
@@ -192,6 +196,7 @@ impl Table {
             bits: BitsCache::default(),
             cos: CosCache::default(),
             angles: AnglesCache::default(),
+            bounds: BoundsCache::default(),
         }
     }
 
@@ -222,6 +227,7 @@ impl Table {
             bits: BitsCache::default(),
             cos: CosCache::default(),
             angles: AnglesCache::default(),
+            bounds: BoundsCache::default(),
         }
     }
 
@@ -245,6 +251,7 @@ impl Table {
         self.data.resize(cells * c, 0.0);
         self.valid.resize(cells, false);
         self.bits = BitsCache::default();
+        self.bounds = BoundsCache::default();
     }
 
     /// The samples, the table consumed (cell-major, channel fastest, as [`Table::data`]).
@@ -279,6 +286,7 @@ impl Table {
     pub(crate) fn buffers_mut(&mut self) -> (&mut [f32], &mut [bool]) {
         // The caller may change validity: the packed copy is rebuilt on the next batch.
         self.bits = BitsCache::default();
+        self.bounds = BoundsCache::default();
         (&mut self.data, &mut self.valid)
     }
 
@@ -1120,10 +1128,29 @@ impl Table {
     /// rank is m. Every cell of shell m is at least as far as the nearest of its axes' m-th
     /// candidates, so once that bound exceeds the best found no later cell can win; the
     /// answer is the minimum over the whole box, as a plain scan gives it.
+    ///
+    /// A box that holds no valid cell on some axis (outside the range of the valid cells'
+    /// indices there, [`Table::valid_bounds`]) is answered at once: a table with no valid cell,
+    /// or only a few, was searched box by box for every lookup (`pack` of a MERL file with one
+    /// valid bin: 15 s, docs/robustness.md).
     fn nearest_valid(&self, t: &[f64], strides: &[usize]) -> Option<usize> {
         const SPAN: usize = (2 * Table::FALLBACK_RADIUS + 2) as usize;
         let axes = self.grid.axes();
         let d = t.len();
+        let bounds = self.valid_bounds()?;
+        for k in 0..d {
+            let first = t[k].floor() as i64 - Self::FALLBACK_RADIUS;
+            let last = first + SPAN as i64 - 1;
+            let (lo, hi) = (bounds[k].0 as i64, bounds[k].1 as i64);
+            let reachable = if axes[k].is_periodic() {
+                (first..=last).any(|i| (lo..=hi).contains(&i.rem_euclid(axes[k].n as i64)))
+            } else {
+                first <= hi && last >= lo
+            };
+            if !reachable {
+                return None;
+            }
+        }
         // Per axis: (squared distance, unwrapped index) of each candidate, nearest first.
         let mut cand = [[(0.0f64, 0i64); SPAN]; 4];
         for k in 0..d {
@@ -1186,6 +1213,35 @@ impl Table {
             }
         }
         best.map(|(_, f)| f)
+    }
+
+    /// Per axis (storage order), the smallest and largest index of a valid cell; `None` when
+    /// no cell is valid. Built once (a pass over the flags) and kept until validity changes.
+    fn valid_bounds(&self) -> Option<[(usize, usize); 4]> {
+        *self.bounds.0.get_or_init(|| {
+            let axes = self.grid.axes();
+            let d = axes.len();
+            let mut bounds = [(usize::MAX, 0usize); 4];
+            let mut any = false;
+            // The multi-index of each flat index in C order (the last axis fastest).
+            let mut idx = [0usize; 4];
+            for &ok in &self.valid {
+                if ok {
+                    any = true;
+                    for (b, &i) in bounds.iter_mut().zip(&idx).take(d) {
+                        *b = (b.0.min(i), b.1.max(i));
+                    }
+                }
+                for k in (0..d).rev() {
+                    idx[k] += 1;
+                    if idx[k] < axes[k].n {
+                        break;
+                    }
+                    idx[k] = 0;
+                }
+            }
+            any.then_some(bounds)
+        })
     }
 
     /// Like [`Table::eval_into`] but refuses queries outside the stored domain (θ > θmax)
@@ -1254,6 +1310,17 @@ struct BitsCache(std::sync::OnceLock<ValidBits>);
 
 impl PartialEq for BitsCache {
     fn eq(&self, _: &BitsCache) -> bool {
+        true
+    }
+}
+
+/// [`Table::valid_bounds`], built on first use; like [`BitsCache`], a cache that is not part
+/// of the table's value.
+#[derive(Clone, Debug, Default)]
+struct BoundsCache(std::sync::OnceLock<Option<[(usize, usize); 4]>>);
+
+impl PartialEq for BoundsCache {
+    fn eq(&self, _: &BoundsCache) -> bool {
         true
     }
 }
@@ -2001,6 +2068,28 @@ mod tests {
                     found += want.is_some() as usize;
                 }
                 assert!(found > 100, "{spec} {density}: {found}");
+            }
+            // No valid cell, and one (in a corner, inside, next to a periodic seam): the
+            // range test answers most queries; the answers are the scan's.
+            let cells = g.cells();
+            for one in [None, Some(0), Some(cells / 2 + 3), Some(cells - 1)] {
+                let mut t = Table::zeroed(g.clone(), Channels::default_for(1));
+                if let Some(f) = one {
+                    t.valid[f] = true;
+                }
+                let mut found = 0;
+                for _ in 0..3000 {
+                    let c: Vec<f64> = g
+                        .axes()
+                        .iter()
+                        .map(|a| rng.next_f64() * (a.n as f64 + 2.0) - 1.0)
+                        .collect();
+                    let want = scan(&t, &c, &strides);
+                    assert_eq!(t.nearest_valid(&c, &strides), want, "{spec} {one:?} {c:?}");
+                    found += want.is_some() as usize;
+                }
+                assert_eq!(t.valid_bounds().is_some(), one.is_some());
+                assert!(one.is_none() || found > 0, "{spec} {one:?}");
             }
         }
     }

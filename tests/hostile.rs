@@ -1720,3 +1720,331 @@ fn header_numbers_at_the_edges_of_f64_are_quoted_in_short_form() {
     assert!(stderr(&o).len() < 300, "{}", stderr(&o));
     assert!(!d.join("r.bpk").exists());
 }
+
+#[test]
+fn eval_angles_off_the_hemisphere_are_refused_naming_the_option() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let spec = "lambert:albedo=0.5";
+    // θ outside [0°, 90°] in either option: exit 2 naming the option, its text and the range
+    // (both were exit 0 before: 1e308° and -10° were taken as angles like any other).
+    for (wi, wo, flag) in [
+        ("1e308,0", "0,0", "--wi-deg \"1e308,0\""),
+        ("-10,0", "0,0", "--wi-deg \"-10,0\""),
+        ("90.5,0", "0,0", "--wi-deg \"90.5,0\""),
+        ("0,0", "1e308,0", "--wo-deg \"1e308,0\""),
+        ("0,0", "-10,0", "--wo-deg \"-10,0\""),
+    ] {
+        let o = run(d, &["eval", spec, "--wi-deg", wi, "--wo-deg", wo]);
+        assert_refused(&o, &[flag, "is out of range", "[0, 90] degrees"]);
+        assert!(o.stdout.is_empty());
+    }
+    let o = run(d, &["eval", spec, "--wi-deg", "1e308,0", "--wo-deg", "0,0"]);
+    assert!(stderr(&o).contains("θ = 1e308"), "{}", stderr(&o));
+    // The horizon itself is a direction (f = 0 there), the normal gives albedo / π, and φ
+    // beyond a turn is its residue: 30,370 is 30,10.
+    let value = |wi: &str, wo: &str| {
+        let o = run(d, &["eval", spec, "--wi-deg", wi, "--wo-deg", wo]);
+        assert!(o.status.success(), "{wi} {wo}: {}", stderr(&o));
+        String::from_utf8(o.stdout).unwrap().trim().to_string()
+    };
+    assert_eq!(value("90,0", "0,0"), "0.0");
+    let f: f64 = value("0,0", "0,1e308").parse().unwrap();
+    assert!((f - 0.5 / std::f64::consts::PI).abs() < 1e-15, "{f}");
+    let spec = "ggx:alpha=0.3";
+    let at = |wi: &str, wo: &str| {
+        let o = run(d, &["eval", spec, "--wi-deg", wi, "--wo-deg", wo]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    assert_eq!(at("30,370", "40,-530"), at("30,10", "40,-170"));
+}
+
+/// A small MERL-layout file (dims in the header) whose bins are all invalid (−1) but for
+/// `valid` (cell index, the same value in each channel).
+fn merl_with_valid_bins(dims: [i32; 3], valid: &[usize]) -> Vec<u8> {
+    let n: usize = dims.iter().map(|&d| d as usize).product();
+    let mut bytes: Vec<u8> = dims.iter().flat_map(|v| v.to_le_bytes()).collect();
+    for _ in 0..3 {
+        for cell in 0..n {
+            let v = if valid.contains(&cell) {
+                750.0f64
+            } else {
+                -1.0
+            };
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    bytes
+}
+
+/// `pack` with `--codec` (no budget, so the planner's refusal of a table without values was
+/// not reached) of a MERL file without one valid bin: it tabulated and checked every cell
+/// through the nearest-valid fallback and wrote a file of 0s (22–25 s for a 90×90×180 file
+/// with `--codec lossless --full-check`, exit 0). Refused up front now, exit 2, as `build`
+/// refuses such a material; a file with one valid bin still packs.
+#[test]
+fn packing_a_table_without_one_valid_cell_is_refused_up_front_with_any_codec() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("dark.binary"), merl_with_valid_bins([8, 8, 16], &[])).unwrap();
+    for codec in ["lossless", "dct:step=0.05"] {
+        let o = run(
+            d,
+            &[
+                "pack",
+                "dark.binary",
+                "--codec",
+                codec,
+                "--full-check",
+                "-o",
+                "dark.bpk",
+            ],
+        );
+        assert_refused(
+            &o,
+            &[
+                "dark.binary",
+                "every one of its 1024 cells is marked invalid",
+                "nothing to pack",
+                "no file written",
+            ],
+        );
+        assert!(!d.join("dark.bpk").exists());
+    }
+    std::fs::write(
+        d.join("m.toml"),
+        "[[material]]\nname = \"dark\"\nsource = \"dark.binary\"\ncodec = \"lossless\"\n\
+         outputs = [\"dark.bpk\"]\n",
+    )
+    .unwrap();
+    let o = run(d, &["build", "m.toml"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("material dark") && e.contains("nothing to pack"),
+        "{e}"
+    );
+    assert!(!d.join("dark.bpk").exists());
+    // One valid bin: packed on its own grid (its lookups find it, or nothing near, at once).
+    std::fs::write(
+        d.join("one.binary"),
+        merl_with_valid_bins([8, 8, 16], &[300]),
+    )
+    .unwrap();
+    let o = run(
+        d,
+        &[
+            "pack",
+            "one.binary",
+            "--grid",
+            "halfdiff3:8x8x16,warp=sqrt/linear/linear,at=edge",
+            "--codec",
+            "lossless",
+            "--full-check",
+            "--json",
+            "-o",
+            "one.bpk",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["valid_cells"], 1, "{v}");
+}
+
+/// An RGL file shaped like `fixtures/rgl/tiny.bsdf` but with 4 θi slices of `n` × `n` colour
+/// samples, all 0 (a packed form of it is a few KB however large `n`).
+fn rgl_of_zeros(n: usize) -> Vec<u8> {
+    let b = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/rgl/tiny.bsdf"))
+        .unwrap();
+    let count = u32::from_le_bytes(b[14..18].try_into().unwrap()) as usize;
+    let mut pos = 18;
+    // (name, dtype, shape, data) in the file's order.
+    let mut fields: Vec<(String, u8, Vec<u64>, Vec<u8>)> = Vec::new();
+    for _ in 0..count {
+        let nl = u16::from_le_bytes(b[pos..pos + 2].try_into().unwrap()) as usize;
+        let name = String::from_utf8(b[pos + 2..pos + 2 + nl].to_vec()).unwrap();
+        pos += 2 + nl;
+        let nd = u16::from_le_bytes(b[pos..pos + 2].try_into().unwrap()) as usize;
+        let dtype = b[pos + 2];
+        let offset = u64::from_le_bytes(b[pos + 3..pos + 11].try_into().unwrap()) as usize;
+        pos += 11;
+        let shape: Vec<u64> = (0..nd)
+            .map(|k| u64::from_le_bytes(b[pos + 8 * k..pos + 8 * k + 8].try_into().unwrap()))
+            .collect();
+        pos += 8 * nd;
+        let size = if dtype == 1 { 1 } else { 4 };
+        let len = size * shape.iter().product::<u64>() as usize;
+        fields.push((name, dtype, shape, b[offset..offset + len].to_vec()));
+    }
+    let (slices, n64) = (4u64, n as u64);
+    for f in &mut fields {
+        match f.0.as_str() {
+            "theta_i" => {
+                f.2 = vec![slices];
+                f.3 = [0.0f32, 0.35, 0.7, 1.05]
+                    .iter()
+                    .flat_map(|v| v.to_le_bytes())
+                    .collect();
+            }
+            "vndf" => {
+                f.2[1] = slices;
+                f.3 = f.3.repeat(2);
+            }
+            "luminance" => {
+                f.2 = vec![1, slices, n64, n64];
+                f.3 = vec![0; 4 * 4 * n * n];
+            }
+            "rgb" => {
+                f.2 = vec![1, slices, 3, n64, n64];
+                f.3 = vec![0; 4 * 12 * n * n];
+            }
+            "valid" => {
+                f.2 = vec![n64 * n64];
+                f.3 = vec![1; n * n];
+            }
+            _ => {}
+        }
+    }
+    let head: usize = 18
+        + fields
+            .iter()
+            .map(|f| 13 + f.0.len() + 8 * f.2.len())
+            .sum::<usize>();
+    let mut offset = head.div_ceil(8) * 8;
+    let mut out = b[..14].to_vec();
+    out.extend_from_slice(&(fields.len() as u32).to_le_bytes());
+    for f in &fields {
+        out.extend_from_slice(&(f.0.len() as u16).to_le_bytes());
+        out.extend_from_slice(f.0.as_bytes());
+        out.extend_from_slice(&(f.2.len() as u16).to_le_bytes());
+        out.push(f.1);
+        out.extend_from_slice(&(offset as u64).to_le_bytes());
+        for s in &f.2 {
+            out.extend_from_slice(&s.to_le_bytes());
+        }
+        offset += f.3.len().div_ceil(8) * 8;
+    }
+    out.resize(head.div_ceil(8) * 8, 0);
+    for f in &fields {
+        out.extend_from_slice(&f.3);
+        out.resize(out.len().div_ceil(8) * 8, 0);
+    }
+    out
+}
+
+/// The memory a packed RGL colour tensor is counted at covers what reading it takes: 16
+/// bytes a value were counted while `inspect` peaked at ~18.9 (`[1, 4, 3, 2048, 2048]` of
+/// zeros, a 9 KB file: 915 MiB for 768 MiB counted). With `[1, 4, 3, 1024, 1024]`: peak RSS
+/// 234 MiB, counted 192 MiB before and 240 MiB now.
+#[test]
+fn a_packed_rgl_colour_tensor_is_counted_at_what_its_read_takes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("z.bsdf"), rgl_of_zeros(1024)).unwrap();
+    let o = run(
+        d,
+        &["pack", "z.bsdf", "--codec", "lossless", "-o", "z.bpk", "-q"],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::metadata(d.join("z.bpk")).unwrap().len() < 100_000);
+    // The count, from the refusal under a budget that admits the stored fields (the
+    // luminance and flags, 17 MiB).
+    let o = run(d, &["--max-memory", "32M", "inspect", "z.bpk"]);
+    assert_refused(&o, &["z.bpk", "the packed RGL colour tensor needs about"]);
+    let e = stderr(&o);
+    let mib: f64 = e
+        .split("needs about ")
+        .nth(1)
+        .and_then(|r| r.split(" MiB").next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("{e}"));
+    assert_eq!(mib, 240.0, "{e}");
+    // The read's peak (the process's own ~8 MiB included) within the count and 16 MiB.
+    let (code, kib) = peak_rss_kib_with(d, &[], &["inspect", "z.bpk"]);
+    assert_eq!(code, 0);
+    println!("inspect of a packed [1, 4, 3, 1024, 1024]: peak RSS {kib} KiB, counted {mib} MiB");
+    assert!(
+        (kib as f64) <= (mib + 16.0) * 1024.0,
+        "peak {kib} KiB > counted {mib} MiB + 16 MiB"
+    );
+}
+
+/// Messages that left out what the user needs: a truncated MERL file on stdin was "unknown
+/// format (...): expected a brdfpack table (.bpk), a brdfpack EXR, a MERL .binary or an MDL
+/// .mbsdf file" (from a file, MERL's size error), a list without the RGL `.bsdf` that `eval -`
+/// reads; and a native table whose header gives a wavelength of −1 nm was read, then refused
+/// by `convert --to-rgb` as "spectral to RGB: wavelength[0] = -1 nm" without the file's name.
+#[test]
+fn stream_and_wavelength_errors_name_what_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pair = ["--wi", "0,0,1", "--wo", "0,0,1"];
+    let eval_stdin = |bytes: &[u8]| {
+        std::fs::write(d.join("in"), bytes).unwrap();
+        brdfpack()
+            .current_dir(d)
+            .args(["eval", "-"])
+            .args(pair)
+            .stdin(std::fs::File::open(d.join("in")).unwrap())
+            .output()
+            .unwrap()
+    };
+    // MERL's standard dims and too few values: MERL's own error, as from a file.
+    let mut merl: Vec<u8> = [90i32, 90, 180]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    merl.extend_from_slice(&0.5f64.to_le_bytes());
+    let o = eval_stdin(&merl);
+    assert_refused(&o, &["does not match dims", "truncated"]);
+    std::fs::write(d.join("short.binary"), &merl).unwrap();
+    let o = run(
+        d,
+        &["eval", "short.binary", "--wi", "0,0,1", "--wo", "0,0,1"],
+    );
+    assert_refused(&o, &["short.binary", "does not match dims", "truncated"]);
+    // Bytes of no known format: every format a source may be is listed, RGL's too (`eval`
+    // and `inspect` read it).
+    let o = eval_stdin(b"not a brdf at all");
+    assert_refused(
+        &o,
+        &[
+            "unknown format (17 bytes)",
+            "a MERL .binary, an RGL .bsdf or an MDL .mbsdf file",
+        ],
+    );
+    let o = run(d, &["inspect", "in"]);
+    assert_refused(&o, &["in: unknown format (17 bytes)", "an RGL .bsdf"]);
+    // A wavelength that is no length: refused where the file is read, naming it.
+    let base = std::fs::read(tabulate(
+        d,
+        "sp.bpk",
+        "lambert:albedo=0.5,wavelengths_nm=450/550/650",
+        "halfdiff3:4",
+        &[],
+    ))
+    .unwrap();
+    for (w, shown) in [(-1.0, "-1.0"), (0.0, "0.0"), (-1e300, "-1e300")] {
+        std::fs::write(
+            d.join("neg.bpk"),
+            lying_native(&base, |h| h["channels"]["wavelengths_nm"][0] = w.into()),
+        )
+        .unwrap();
+        for args in [
+            vec!["convert", "neg.bpk", "--to-rgb", "-o", "rgb.bpk"],
+            vec!["inspect", "neg.bpk"],
+        ] {
+            let o = run(d, &args);
+            assert_refused(
+                &o,
+                &[
+                    "neg.bpk",
+                    &format!("wavelength[0] = {shown} nm (channel \"450nm\")"),
+                    "expected a finite value > 0",
+                ],
+            );
+        }
+        assert!(!d.join("rgb.bpk").exists());
+    }
+}

@@ -792,6 +792,43 @@ fn a_packed_file_of_the_line_end_model_still_reads() {
     }
 }
 
+/// A derived `sigma` whose header scale takes the NDF's projected area out of f32's positive
+/// range is refused naming `sigma.scale` and its value (1e-308 was "field `sigma`: value #0
+/// is 0e0", which did not say where the 0 came from).
+#[test]
+fn a_derived_sigma_scale_out_of_f32_range_is_named() {
+    let f = RglFields::parse(&synthetic(1), "synthetic").unwrap();
+    let made = packed::with_derived_sigma(&f, 1.01, "synthetic").unwrap();
+    let opts = PackOptions {
+        derive_sigma: Some(1.01),
+        ..PackOptions::lossless()
+    };
+    let file = packed::to_bytes(&made, &opts, &provenance()).unwrap();
+    assert!(packed::from_bytes(&file, Path::new("made.bpk")).is_ok());
+    for (scale, shown, value) in [(1e-308, "1e-308", "0e0"), (1e300, "1e300", "inf")] {
+        let bad = with_header(&file, |h| h["sigma"]["scale"] = scale.into());
+        let e = packed::from_bytes(&bad, Path::new("made.bpk")).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        let m = e.to_string();
+        assert!(m.starts_with("made.bpk: "), "{m}");
+        assert!(
+            m.contains(&format!(
+                "header field `sigma.scale` = {shown} makes the derived `sigma` value #0 {value}"
+            )),
+            "{m}"
+        );
+    }
+    // The scale's own range check quotes it in short form too.
+    let bad = with_header(&file, |h| h["sigma"]["scale"] = (-1e300).into());
+    let m = packed::from_bytes(&bad, Path::new("made.bpk"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        m.contains("header field `sigma.scale` = -1e300 is not a positive number"),
+        "{m}"
+    );
+}
+
 /// `sigma` is left for the reader to derive when it is its NDF's projected area times one
 /// constant (`packed::sigma_scale`): the synthetic file's made-up `sigma` is not, the same file
 /// with `sigma` = 1.01 × the projected area is (c = 1.01, read back within f32), and so are

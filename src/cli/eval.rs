@@ -15,6 +15,10 @@ pointing away from the surface. Directions below the horizon give 0.
 One pair:    brdfpack eval SOURCE --wi X,Y,Z --wo X,Y,Z     (or --wi-deg/--wo-deg THETA,PHI)
 A stream:    brdfpack eval SOURCE < pairs.txt                (when no pair is given)
 
+In --wi-deg/--wo-deg, THETA is the polar angle from the normal in [0, 90] degrees (90 is the
+horizon, where f is 0; anything else is refused, exit 2) and PHI the azimuth, any finite
+value (taken modulo 360).
+
 Stream input, one pair per line: `wix wiy wiz wox woy woz` separated by whitespace or commas
 (a header line `wix,wiy,wiz,wox,woy,woz` is allowed), or a JSON object
 {\"wi\":[x,y,z],\"wo\":[x,y,z]}; blank lines and lines starting with # are skipped. Without
@@ -239,7 +243,7 @@ fn parse_vector_arg(flag: &str, text: &str) -> Result<Vec3> {
 fn parse_degrees_arg(flag: &str, text: &str) -> Result<Vec3> {
     let at = |m: String| Error::input(format!("{flag} {text:?}: {m}"));
     let v = parse_numbers(text, 2, "theta,phi in degrees").map_err(at)?;
-    Ok(Vec3::from_spherical(v[0].to_radians(), v[1].to_radians()))
+    crate::pairs::direction_from_degrees(v[0], v[1]).map_err(at)
 }
 
 /// One stream line in JSON form.

@@ -189,6 +189,10 @@ pub fn run(a: InspectArgs) -> anyhow::Result<i32> {
         }
         return Ok(0);
     }
+    if format == Format::Unknown {
+        // `inspect` reads RGL files too: the list says so.
+        return Err(crate::io::unknown_format(&bytes, &a.file, true).into());
+    }
     let t = decode_table(&bytes, &a.file)?;
     report_table(&a, &t, format, bytes.len())
 }

@@ -170,6 +170,7 @@ pub fn run(a: PackArgs) -> anyhow::Result<i32> {
         Some(s) => a.symmetry.apply(Source::open_recording(s, &mut reads)?),
         None => Source::Model(Model::default_material()),
     };
+    source.require_valid_cells()?;
     // An RGL file without --grid: packed in its own parameterization (issue #19), unless a
     // codec for tables is asked for or something the form cannot keep.
     if let Source::Measured(_) = &source

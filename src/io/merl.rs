@@ -175,6 +175,16 @@ fn header_dims(bytes: &[u8]) -> [i32; 3] {
     [d(0), d(1), d(2)]
 }
 
+/// Whether `bytes` start with MERL's standard dims (90, 90, 180), whatever their length: a
+/// truncated or padded MERL file, which gets MERL's size error rather than "unknown format".
+pub fn has_standard_dims(bytes: &[u8]) -> bool {
+    bytes.len() >= HEADER_BYTES
+        && header_dims(bytes)
+            .iter()
+            .zip(STANDARD_DIMS)
+            .all(|(&d, s)| d as i64 == s as i64)
+}
+
 /// True when `bytes` look like a MERL file: positive dims whose product accounts for the
 /// size exactly (the format has no magic).
 pub fn looks_like_merl(bytes: &[u8]) -> bool {

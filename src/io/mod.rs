@@ -46,7 +46,8 @@ impl Format {
 }
 
 /// The format of `bytes`. Content decides; the path only helps a damaged MERL file (which
-/// has no magic) get MERL's precise error instead of "unknown format".
+/// has no magic) get MERL's precise error instead of "unknown format", as do MERL's standard
+/// dims at the start of a stream (a truncated MERL file on stdin).
 pub fn detect(bytes: &[u8], path: &Path) -> Format {
     if rgl::packed::is_packed_rgl(bytes) {
         // A measured RGL file packed in its own parameterization: read as the RGL file.
@@ -59,7 +60,10 @@ pub fn detect(bytes: &[u8], path: &Path) -> Format {
         Format::Rgl
     } else if mbsdf::is_mbsdf(bytes) {
         Format::Mbsdf
-    } else if merl::looks_like_merl(bytes) || has_extension(path, "binary") {
+    } else if merl::looks_like_merl(bytes)
+        || merl::has_standard_dims(bytes)
+        || has_extension(path, "binary")
+    {
         Format::Merl
     } else {
         Format::Unknown
@@ -91,15 +95,22 @@ pub fn decode_table(bytes: &[u8], path: &Path) -> Result<Table> {
             path,
             "an RGL .bsdf file is a measured BRDF, not a table (tabulate it on a grid instead)",
         )),
-        Format::Unknown => Err(Error::invalid_file(
-            path,
-            format!(
-                "unknown format ({} bytes): expected a brdfpack table (.bpk), a brdfpack EXR, \
-                 a MERL .binary or an MDL .mbsdf file",
-                bytes.len()
-            ),
-        )),
+        Format::Unknown => Err(unknown_format(bytes, path, false)),
     }
+}
+
+/// The error for bytes of no known format, listing what the caller reads: tables, and RGL
+/// `.bsdf` files too when `measured` (a source: `eval`, `check`, `pack`...).
+pub fn unknown_format(bytes: &[u8], path: &Path, measured: bool) -> Error {
+    Error::invalid_file(
+        path,
+        format!(
+            "unknown format ({} bytes): expected a brdfpack table (.bpk), a brdfpack EXR, a \
+             MERL .binary{} or an MDL .mbsdf file",
+            bytes.len(),
+            if measured { ", an RGL .bsdf" } else { "" }
+        ),
+    )
 }
 
 /// Reads a table file (native, EXR or MERL; `-` = stdin).

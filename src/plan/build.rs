@@ -387,6 +387,7 @@ fn write_if_changed(path: &Path, bytes: &[u8]) -> Result<bool> {
 /// grid), encoded in each output's format.
 fn make_outputs(m: &Material, scene: &Scene) -> Result<Vec<(PathBuf, Vec<u8>)>> {
     let source = Source::open(&m.source)?.clamp_negative(m.clamp_negative);
+    source.require_valid_cells()?;
     // An RGL file with native outputs only and no grid: packed in its own parameterization
     // (issue #19), as `pack` packs it.
     if let Source::Measured(r) = &source

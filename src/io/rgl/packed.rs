@@ -273,6 +273,14 @@ fn derive(fields: &RglFields, shape: &[usize], what: &str) -> Result<Vec<f32>> {
 /// values; 4 bytes were counted, so a 2 KB file declaring 2^28 values took 5.8 GB).
 const VNDF_READ_BYTES_PER_VALUE: u64 = 24;
 
+/// Bytes a colour value costs the reader at its peak: the decoded f32 values and the coder's
+/// planes, the field's bytes, a derived `luminance` (a third of a value), the tensor file
+/// [`super::RglBsdf::from_fields`] makes of the fields and the validated copies. Measured
+/// (peak RSS of `inspect` over packed files of zeros, `[1, 4, 3, N, N]` for N = 1024, 1448,
+/// 2048): 18.9 bytes a value; 16 were counted, so `[1, 4, 3, 2048, 2048]` (a 9 KB file) took
+/// 915 MiB for 768 MiB counted.
+const COLOUR_READ_BYTES_PER_VALUE: u64 = 20;
+
 /// Largest relative deviation between a file's `sigma` and its NDF's projected area times
 /// one constant for which `sigma` is left for the reader to derive. The four public files
 /// deviate by at most 1.5e-4; the planner also measures the derived form against the source.
@@ -570,9 +578,11 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
                 h.colour.shape
             ))
         })?;
-    // The decoded values and the coder's planes.
-    crate::memory::require("the packed RGL colour tensor", values.saturating_mul(16))
-        .map_err(|e| bad(e.to_string()))?;
+    crate::memory::require(
+        "the packed RGL colour tensor",
+        values.saturating_mul(COLOUR_READ_BYTES_PER_VALUE),
+    )
+    .map_err(|e| bad(e.to_string()))?;
     let rest = &data[h.stored_bytes..];
     let (colour_payload, vndf_payload) = match h.colour_bytes {
         Some(n) if n <= rest.len() => rest.split_at(n),
@@ -648,13 +658,27 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(PackedHeader, RglFields)
             let v = derive(&stored, &shape, &what)?;
             Some(RawField::f32(name, shape, &v))
         } else if let (true, Some(d)) = (name == "sigma", &h.sigma) {
+            let scale = crate::model::params::fmt_num(d.scale);
             if !d.scale.is_finite() || d.scale <= 0.0 {
                 return Err(bad(format!(
-                    "header field `sigma.scale` = {} is not a positive number",
-                    d.scale
+                    "header field `sigma.scale` = {scale} is not a positive number"
                 )));
             }
             let v = derived_sigma(&stored, &d.shape, d.scale, &what)?;
+            // The scale is the header's word: one that takes the NDF's projected area out of
+            // f32's positive range makes every value 0 (or inf), which the RGL reader then
+            // reported as "field `sigma`: value #0 is 0e0" without naming the scale.
+            if let Some((i, x)) = v
+                .iter()
+                .enumerate()
+                .find(|(_, x)| !(x.is_finite() && **x > 0.0))
+            {
+                return Err(bad(format!(
+                    "header field `sigma.scale` = {scale} makes the derived `sigma` value #{i} \
+                     {x:e} in f32 (the NDF's projected area times the scale); expected a \
+                     scale that keeps it finite and > 0"
+                )));
+            }
             Some(RawField::f32(name, d.shape.clone(), &v))
         } else if name == "luminance" && h.luminance == Some(FieldForm::Derived) {
             if h.colour.name != "rgb" || channels != 3 {
