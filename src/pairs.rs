@@ -28,10 +28,12 @@ pub fn unit_direction(v: [f64; 3], name: &str) -> Result<Vec3, String> {
 /// its residue names and every |φ| < 360° is used as given (the same bits as before).
 /// The error names the offending angle and the accepted range.
 pub fn direction_from_degrees(theta_deg: f64, phi_deg: f64) -> Result<Vec3, String> {
-    if !(0.0..=90.0).contains(&theta_deg) {
+    // Any direction of the sphere, as the vector form (`--wi`) takes: past 90° it lies below
+    // the horizon, where the one-sided source is 0 (tests/cli_eval.rs evaluates θ = 120°).
+    if !(0.0..=180.0).contains(&theta_deg) {
         return Err(format!(
-            "θ = {} is out of range; expected a polar angle in [0, 90] degrees (90 is the \
-             horizon)",
+            "θ = {} is out of range; expected a polar angle in [0, 180] degrees (90 is the \
+             horizon, beyond it f = 0)",
             crate::model::params::fmt_num(theta_deg)
         ));
     }
@@ -366,10 +368,15 @@ mod tests {
         assert_eq!(d(90.0, 0.0).unwrap()[2], 0.0);
         assert_eq!(d(0.0, 123.0).unwrap(), [0.0, 0.0, 1.0]);
         assert_eq!(d(-0.0, 0.0).unwrap(), [0.0, 0.0, 1.0]);
-        // Below the normal's 0 and past the horizon: refused, naming the angle and the range.
+        // Below the horizon: a direction like any other (the source is 0 there); the
+        // opposite pole is (0, 0, −1).
+        assert!(d(120.0, 0.0).unwrap()[2] < 0.0);
+        assert_eq!(d(180.0, 0.0).unwrap()[2], -1.0);
+        // Below the normal's 0 and past the opposite pole: refused, naming the angle and the
+        // range.
         for (t, shown) in [
             (-10.0, "-10"),
-            (90.000001, "90.000001"),
+            (180.000001, "180.000001"),
             (1e308, "1e308"),
             (-1e-300, "-1e-300"),
         ] {
@@ -378,7 +385,7 @@ mod tests {
                 e.starts_with(&format!("θ = {shown} is out of range")),
                 "{e}"
             );
-            assert!(e.contains("[0, 90] degrees"), "{e}");
+            assert!(e.contains("[0, 180] degrees"), "{e}");
         }
         // φ below 360° in magnitude is used as given; beyond, its residue (exact in f64).
         assert_eq!(d(30.0, 370.0).unwrap(), d(30.0, 10.0).unwrap());

@@ -1722,21 +1722,22 @@ fn header_numbers_at_the_edges_of_f64_are_quoted_in_short_form() {
 }
 
 #[test]
-fn eval_angles_off_the_hemisphere_are_refused_naming_the_option() {
+fn eval_angles_off_the_sphere_are_refused_naming_the_option() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let spec = "lambert:albedo=0.5";
-    // θ outside [0°, 90°] in either option: exit 2 naming the option, its text and the range
-    // (both were exit 0 before: 1e308° and -10° were taken as angles like any other).
+    // θ outside [0°, 180°] in either option: exit 2 naming the option, its text and the range
+    // (both were exit 0 before: 1e308° and -10° were taken as angles like any other). Below
+    // the horizon (90° < θ ≤ 180°) is a direction, as in the vector form, where f = 0.
     for (wi, wo, flag) in [
         ("1e308,0", "0,0", "--wi-deg \"1e308,0\""),
         ("-10,0", "0,0", "--wi-deg \"-10,0\""),
-        ("90.5,0", "0,0", "--wi-deg \"90.5,0\""),
+        ("180.5,0", "0,0", "--wi-deg \"180.5,0\""),
         ("0,0", "1e308,0", "--wo-deg \"1e308,0\""),
         ("0,0", "-10,0", "--wo-deg \"-10,0\""),
     ] {
         let o = run(d, &["eval", spec, "--wi-deg", wi, "--wo-deg", wo]);
-        assert_refused(&o, &[flag, "is out of range", "[0, 90] degrees"]);
+        assert_refused(&o, &[flag, "is out of range", "[0, 180] degrees"]);
         assert!(o.stdout.is_empty());
     }
     let o = run(d, &["eval", spec, "--wi-deg", "1e308,0", "--wo-deg", "0,0"]);
@@ -1749,6 +1750,7 @@ fn eval_angles_off_the_hemisphere_are_refused_naming_the_option() {
         String::from_utf8(o.stdout).unwrap().trim().to_string()
     };
     assert_eq!(value("90,0", "0,0"), "0.0");
+    assert_eq!(value("120,0", "0,0"), "0.0");
     let f: f64 = value("0,0", "0,1e308").parse().unwrap();
     assert!((f - 0.5 / std::f64::consts::PI).abs() < 1e-15, "{f}");
     let spec = "ggx:alpha=0.3";

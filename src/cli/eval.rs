@@ -15,9 +15,9 @@ pointing away from the surface. Directions below the horizon give 0.
 One pair:    brdfpack eval SOURCE --wi X,Y,Z --wo X,Y,Z     (or --wi-deg/--wo-deg THETA,PHI)
 A stream:    brdfpack eval SOURCE < pairs.txt                (when no pair is given)
 
-In --wi-deg/--wo-deg, THETA is the polar angle from the normal in [0, 90] degrees (90 is the
-horizon, where f is 0; anything else is refused, exit 2) and PHI the azimuth, any finite
-value (taken modulo 360).
+In --wi-deg/--wo-deg, THETA is the polar angle from the normal in [0, 180] degrees (90 is the
+horizon; below it, as for a vector with z <= 0, f is 0; anything else is refused, exit 2) and
+PHI the azimuth, any finite value (taken modulo 360).
 
 Stream input, one pair per line: `wix wiy wiz wox woy woz` separated by whitespace or commas
 (a header line `wix,wiy,wiz,wox,woy,woz` is allowed), or a JSON object
