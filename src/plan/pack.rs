@@ -612,7 +612,7 @@ fn plan_once(input: PackInput, settings: &PackSettings, progress: Progress) -> R
                 tabulate(s, &g, &options).map(Table::into_samples)
             })
         };
-        // `max` runs its seven codec variants on the first grid, and on a finer grid tried
+        // `max` runs its codec variants on the first grid, and on a finer grid tried
         // once a file is written (at `max` a finer grid is always tried) the default's: the
         // finer grid is tried for its own error, and the variants, each a rate control of
         // seconds on 2.9 M cells, made `max` 66 s for a narrow peak over a dark body (the

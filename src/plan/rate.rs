@@ -55,7 +55,8 @@ pub enum Effort {
     #[default]
     Default,
     /// Several ε scales and dead zones and a refined fill, each rate-controlled; a larger
-    /// estimation set.
+    /// estimation set. (A dead zone of 0.6 was among them: on 30 materials at the production
+    /// budget, 17 generated and 13 measured, it never made the smallest file.)
     Max,
 }
 
@@ -136,7 +137,6 @@ impl Effort {
                 v(0.5, DEFAULT_DEADZONE, 0),
                 v(2.0, DEFAULT_DEADZONE, 0),
                 v(1.0, 1.0, 0),
-                v(1.0, 0.6, 0),
                 v(1.0, DEFAULT_DEADZONE, 4),
             ],
         }
@@ -151,9 +151,39 @@ const SECOND_CURVE_BELOW: f64 = 0.67;
 /// Passes of the refined fill the default effort makes once, at its first candidate's step
 /// ([`Control::run`]; `Domain::FillRefined` with `at_step`). One pass took the production
 /// file of `gold-metallic-paint.binary` from 28,292 to about 24 KB (a fill made at every
-/// candidate's step: 24,391 B, but 0.5 s and 73 MB more); further passes gain a few percent
-/// each (`max` effort tries four at every step).
+/// candidate's step: 24,391 B, but 0.5 s and 73 MB more). A larger file gets more passes
+/// ([`refine_passes`]); `max` effort also tries four at every step.
 const DEFAULT_REFINE_ONCE: u32 = 1;
+
+/// Passes of the refined fill for an accepted file of `payload` bytes, at least `at_least`
+/// (the variant's [`Variant::refine_once`]). A pass costs the same on every file of a grid
+/// (an inverse and a forward DCT of each plane, made again at each of up to
+/// [`REFINED_TRIES`] steps), while what it saves grows with the file: on 14 MERL-grid
+/// measured tables at the production budget, 2 passes (λ 1.5) and 4 (λ 1.8,
+/// [`MANY_PASS_RELAXATION`]) made the files a median 0.92 and 0.85 of one pass's (0.82–0.99
+/// and 0.67–0.94; black-phenolic 27.7 → 22.7 → 18.6 KB), 3–5% of the payload a pass, so more passes are made only where that is hundreds of
+/// bytes: 2 from [`TWO_PASSES_FROM`], 4 from [`FOUR_PASSES_FROM`].
+fn refine_passes(at_least: u32, payload: usize) -> u32 {
+    let by_size = if payload >= FOUR_PASSES_FROM {
+        4
+    } else if payload >= TWO_PASSES_FROM {
+        2
+    } else {
+        1
+    };
+    at_least.max(by_size)
+}
+
+/// Payload bytes from which the refined fill makes 2 passes ([`refine_passes`]).
+const TWO_PASSES_FROM: usize = 8 * 1024;
+/// Payload bytes from which the refined fill makes 4 passes ([`refine_passes`]).
+const FOUR_PASSES_FROM: usize = 20 * 1024;
+
+/// The relaxation of a refined fill of more than one pass. One pass is made with
+/// [`FILL_RELAXATION`] (λ 1.75 gained nothing over 1.5 there); over several, a longer step
+/// per pass keeps gaining: at 4 passes, λ 1.8 made the production files of 14 measured
+/// MERL-grid tables a median 0.966 of λ 1.5's (0.941–1.005).
+const MANY_PASS_RELAXATION: f32 = 1.8;
 
 /// Refined files measured at most after the rate control has converged: at its step, then at
 /// larger ones while the refined file leaves room under every bound
@@ -421,6 +451,14 @@ fn encode(
     let eps_of = |scale: f64| curve_eps(channels, est.epsilon(), scale, curve_floor.as_deref());
     // Variants whose curves the floor makes the same are one variant.
     let mut variants = effort.variants(access.table().grid().cells(), est.curve_scale(budget));
+    if access.table().valid().iter().all(|&v| v) {
+        // No invalid cell to fill: a refined fill is the plain one, and its variant another
+        // run of the same (`max` on an extended grid spent 2 s on it).
+        for v in &mut variants {
+            v.refine = 0;
+            v.refine_once = 0;
+        }
+    }
     let mut seen: Vec<(Vec<f64>, f64, u32, u32)> = Vec::new();
     variants.retain(|v| {
         let key = (eps_of(v.eps_scale), v.deadzone, v.refine, v.refine_once);
@@ -609,6 +647,10 @@ fn encode(
                     return Err(e);
                 }
             };
+            let outcome = match &found {
+                Some((_, payload, _)) => format!("payload {} bytes", payload.len()),
+                None => "nothing met the budget".to_string(),
+            };
             if let Some((spec, payload, e)) = found
                 && best.as_ref().is_none_or(|b| payload.len() < b.1.len())
             {
@@ -620,7 +662,7 @@ fn encode(
                 "rate control"
             };
             timings.push((
-                format!("{stage} ({})", v.describe()),
+                format!("{stage} ({}): {outcome}", v.describe()),
                 t.elapsed().as_secs_f64(),
             ));
         }
@@ -1216,7 +1258,7 @@ impl Control<'_> {
     }
 
     /// The accepted candidate `best` again with its invalid cells' fill refined at its own
-    /// step ([`Variant::refine_once`] passes, `codec::planes::refine_coefficients_f32`, one
+    /// step ([`refine_passes`] passes, `codec::planes::refine_coefficients_f32`, one
     /// plane at a time in f32), decoded and measured: kept when it is accepted and smaller.
     /// The refinement moves the fill towards what that step reconstructs, so fewer
     /// coefficients survive the dead zone, and the decode's error falls with them; when the
@@ -1240,11 +1282,17 @@ impl Control<'_> {
         let header = |s: &CodecSpec| serde_json::to_string(s).map_or(0, |j| j.len());
         let size = |b: &(CodecSpec, Vec<u8>, Estimate)| b.1.len() + header(&b.0);
         let unrefined = best.clone();
+        let passes = refine_passes(self.variant.refine_once, best.1.len());
         let mut best = best;
         let mut step = s;
-        let mut relaxation = FILL_RELAXATION;
+        let mut relaxation = if passes > 1 {
+            MANY_PASS_RELAXATION
+        } else {
+            FILL_RELAXATION
+        };
         for k in 0..REFINED_TRIES {
-            let (mut spec, mut payload, mut codes) = self.refined_at(&best.0, step, relaxation);
+            let (mut spec, mut payload, mut codes) =
+                self.refined_at(&best.0, step, relaxation, passes);
             // At the accepted step the refined file may be a little larger and still pay:
             // its error is lower, so the larger step it leaves room for can win. Later
             // tries must be smaller than what they replace.
@@ -1258,7 +1306,7 @@ impl Control<'_> {
                 // unrefined at 4,185 B against the plain pass's 3,208 B): the plain pass
                 // instead, for this file's tries.
                 relaxation = 1.0;
-                (spec, payload, codes) = self.refined_at(&best.0, step, relaxation);
+                (spec, payload, codes) = self.refined_at(&best.0, step, relaxation, passes);
             }
             if too_large(&spec, &payload, &best) {
                 break;
@@ -1305,6 +1353,7 @@ impl Control<'_> {
         spec: &CodecSpec,
         s: f64,
         relaxation: f32,
+        passes: u32,
     ) -> (CodecSpec, Vec<u8>, Vec<dct::Coefficients>) {
         let dims = self.table.grid().shape();
         let v = self.variant;
@@ -1321,7 +1370,7 @@ impl Control<'_> {
                         &fills[k],
                         s,
                         v.deadzone,
-                        v.refine_once,
+                        passes,
                         relaxation,
                     ),
                     None => refine_coefficients_f32(
@@ -1330,7 +1379,7 @@ impl Control<'_> {
                         self.table.valid(),
                         s,
                         v.deadzone,
-                        v.refine_once,
+                        passes,
                         relaxation,
                     ),
                 };
@@ -1347,9 +1396,7 @@ impl Control<'_> {
             ..
         } = &mut spec
         {
-            *domain = Domain::FillRefined {
-                iterations: v.refine_once,
-            };
+            *domain = Domain::FillRefined { iterations: passes };
             dct.step.iter_mut().for_each(|x| *x = s);
             coding.model = model;
         }
@@ -2053,6 +2100,54 @@ mod tests {
             .decode(&refined.payload, &Layout::of(&t))
             .unwrap();
         assert_eq!(est.measure(&back), refined.estimate);
+    }
+
+    /// The premise of [`refine_passes`] and [`MANY_PASS_RELAXATION`]: at one step, more passes
+    /// of the refined fill (at the longer relaxation) code a table with invalid cells in fewer
+    /// bytes; the pass counts follow the accepted file's payload.
+    #[test]
+    fn more_passes_of_the_refined_fill_code_fewer_bytes() {
+        let m = Model::parse("lambert:albedo=0.05+ggx:alpha=0.1,fresnel=au").unwrap();
+        let g = parse_grid_spec("halfdiff3:32x32x48,warp=sqrt/linear/linear,at=edge").unwrap();
+        let t = tabulate(&m, &g, &Default::default()).unwrap();
+        let valid = t.valid().to_vec();
+        assert!(valid.iter().any(|v| !v));
+        let eps = vec![1e-3 * 0.05; t.channels().len()];
+        let (_, coefs, fills, _) = transform_and_coefficients(&t, &eps, false, false, &|_| {});
+        let fills = fills.expect("the fill of a table with invalid cells is kept");
+        let dims = g.shape();
+        let step = 0.05;
+        let coded = |passes: u32, relaxation: f32| {
+            let codes: Vec<_> = coefs
+                .iter()
+                .zip(&fills)
+                .map(|(c, f)| {
+                    let refined = refine_coefficients_from_fill(
+                        c.clone(),
+                        &dims,
+                        &valid,
+                        f,
+                        step,
+                        DEFAULT_DEADZONE,
+                        passes,
+                        relaxation,
+                    );
+                    coefcode::quantize_deadzone(&refined, &dims, step, DEFAULT_DEADZONE)
+                })
+                .collect();
+            coefcode::encode_smaller(&codes).1.len()
+        };
+        let plain = coded(0, FILL_RELAXATION);
+        let one = coded(1, FILL_RELAXATION);
+        let two = coded(2, MANY_PASS_RELAXATION);
+        let four = coded(4, MANY_PASS_RELAXATION);
+        assert!(one < plain, "{one} vs {plain}");
+        assert!(two < one, "{two} vs {one}");
+        assert!(four < two, "{four} vs {two}");
+        assert_eq!(refine_passes(1, TWO_PASSES_FROM - 1), 1);
+        assert_eq!(refine_passes(1, TWO_PASSES_FROM), 2);
+        assert_eq!(refine_passes(1, FOUR_PASSES_FROM), 4);
+        assert_eq!(refine_passes(8, 1), 8);
     }
 
     /// The first curve is refined after a raise at the default effort exactly when the raised
