@@ -538,7 +538,7 @@ mod tests {
         assert!(r.is_none() && n == 1, "{n} trials");
         let free = largest_step(&budget, 0.05, None, &mut t).unwrap().unwrap();
         let (mut n, mut m) = (0, 0);
-        let beaten = largest_step(&budget, 0.05, Some(40_000), &mut |s| {
+        let beaten = largest_step(&budget, 0.05, Some(60_000), &mut |s| {
             n += 1;
             t(s)
         })
