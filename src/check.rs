@@ -855,18 +855,32 @@ fn check_pairs(
     let chunks = pairs.chunks(per);
     let (own_reference, own_candidate) = (pairs.own_table(reference), pairs.own_table(candidate));
     let geo = pairs.geometry();
+    // A chunk's values: a table's own valid cells read at its nodes, every other pair
+    // through one `eval_pairs` (a table's batched lookups; the bits of `eval` per pair).
     let eval = |brdf: &dyn Brdf, own: Option<&Table>, chunk: &Chunk| {
         let mut v = vec![0.0; chunk.pairs.len() * c];
-        for (j, &(wi, wo)) in chunk.pairs.iter().enumerate() {
-            let out = &mut v[j * c..(j + 1) * c];
-            match own {
-                Some(t) if t.valid()[chunk.cells[j]] => {
-                    let cell = chunk.cells[j];
-                    for (o, &x) in out.iter_mut().zip(&t.data()[cell * c..(cell + 1) * c]) {
-                        *o = x as f64;
-                    }
+        let Some(t) = own else {
+            brdf.eval_pairs(&chunk.pairs, &mut v);
+            return v;
+        };
+        let mut rest = Vec::new();
+        for (j, &pair) in chunk.pairs.iter().enumerate() {
+            let cell = chunk.cells[j];
+            if t.valid()[cell] {
+                let out = &mut v[j * c..(j + 1) * c];
+                for (o, &x) in out.iter_mut().zip(&t.data()[cell * c..(cell + 1) * c]) {
+                    *o = x as f64;
                 }
-                _ => brdf.eval(wi, wo, out),
+            } else {
+                rest.push((j, pair));
+            }
+        }
+        if !rest.is_empty() {
+            let pairs: Vec<(Vec3, Vec3)> = rest.iter().map(|r| r.1).collect();
+            let mut g = vec![0.0; pairs.len() * c];
+            brdf.eval_pairs(&pairs, &mut g);
+            for ((j, _), g) in rest.iter().zip(g.chunks_exact(c.max(1))) {
+                v[j * c..(j + 1) * c].copy_from_slice(g);
             }
         }
         v

@@ -1344,19 +1344,28 @@ mod batched_tests {
     fn a_tables_batched_albedo_has_the_bits_of_its_pair_by_pair_albedo() {
         let model = crate::model::Model::parse("lambert:albedo=0.3/0.2/0.1 + ggx:alpha=0.15")
             .expect("model");
-        let grid = parse_grid_spec("halfdiff3:16x16x32").expect("grid");
-        let table = tabulate(&model, &grid, &TabulateOptions::default()).expect("table");
-        for interp in [Interp::Linear, Interp::Nearest] {
-            let t = InterpolatedTable {
-                table: &table,
-                interp,
-            };
-            for deg in [0.0, 37.0, 85.0] {
-                let wi = Vec3::from_spherical(f64::to_radians(deg), 0.4);
-                let batched = half_vector_albedo(&t, wi, HalfVectorRule::COARSE);
-                let single = half_vector_albedo(&PairByPair(&t), wi, HalfVectorRule::COARSE);
-                assert!(batched.iter().all(|a| *a > 0.01), "{batched:?}");
-                assert_eq!(batched, single, "{interp:?} at {deg}°");
+        // Linear space, and the log space of `pack`'s narrow peaks on its default grid (the
+        // grazing θd warp, extended below the horizon), plain and cosine-weighted.
+        for spec in [
+            "halfdiff3:16x16x32",
+            "halfdiff3:16x16x32,warp=sqrt/grazing/linear,at=edge,horizon=extend,space=log:1e-6",
+            "halfdiff3:16x16x32,weight=cosine,space=log:0.01",
+        ] {
+            let grid = parse_grid_spec(spec).expect("grid");
+            let table = tabulate(&model, &grid, &TabulateOptions::default()).expect("table");
+            for interp in [Interp::Linear, Interp::Nearest] {
+                let t = InterpolatedTable {
+                    table: &table,
+                    interp,
+                };
+                for deg in [0.0, 37.0, 85.0] {
+                    let wi = Vec3::from_spherical(f64::to_radians(deg), 0.4);
+                    let batched = half_vector_albedo(&t, wi, HalfVectorRule::COARSE);
+                    let single = half_vector_albedo(&PairByPair(&t), wi, HalfVectorRule::COARSE);
+                    assert!(batched.iter().all(|a| *a > 0.01), "{batched:?}");
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&batched), bits(&single), "{spec} {interp:?} at {deg}°");
+                }
             }
         }
     }

@@ -750,8 +750,8 @@ impl Table {
         );
         /// Pairs per parallel work item.
         const CHUNK: usize = 4096;
-        // Cosine-weighted and log-space grids take the per-pair path: the batched loops
-        // interpolate f linearly.
+        // Cosine-weighted grids take the per-pair path and log-space ones their own
+        // ([`Table::eval_log_blocks`]): the batched loops interpolate f linearly.
         let batched = self.grid.weight().is_none() && self.log_space(interp).is_none();
         let indexer = HalfdiffIndexer::new(&self.grid)
             .filter(|_| batched)
@@ -765,7 +765,12 @@ impl Table {
             Some(_) => self.valid_bits(),
             None => &ValidBits(Vec::new()),
         };
+        let log = self.log_space(interp);
         let chunk = |(out, pairs): (&mut [f64], &[(Vec3, Vec3)])| match &indexer {
+            None if log.is_some() => {
+                let log = log.expect("a log space");
+                self.eval_log_blocks(pairs, log, &layout, avx2, out)
+            }
             None => {
                 for (o, &(wi, wo)) in out.chunks_exact_mut(c).zip(pairs) {
                     self.eval_into(wi, wo, interp, o);
@@ -853,6 +858,99 @@ impl Table {
             }
             self.interpolate3(t, ok, st, interp, layout, bits, out);
             std::mem::swap(&mut cur, &mut next);
+        }
+    }
+
+    /// Lookups in a log space ([`InterpSpace::Log`], either weight), a block of pairs at a
+    /// time: every pair's angles and valid neighbours as [`Table::eval_into`] finds them,
+    /// then the asinh of every neighbour's every channel in one pass (four lanes at a time
+    /// with `avx2`, [`crate::math::log::asinh_in_place_avx2`]: the bits of one asinh per
+    /// value), then each pair's weighted sum in corner order and [`LogSpace::finish`]; the
+    /// nearest-valid fallback of a pair without a valid neighbour as
+    /// [`Table::interpolate_log`] takes it. The operations of [`Table::interpolate_log`] on
+    /// the same values in the same order, so the same bits (test
+    /// `eval_batch_equals_eval_into`): per pair, the transforms were most of a log-space
+    /// lookup (an asinh per corner and channel, 24 a pair on a 3-D RGB grid).
+    fn eval_log_blocks(
+        &self,
+        pairs: &[(Vec3, Vec3)],
+        log: LogSpace,
+        layout: &Layout,
+        avx2: bool,
+        out: &mut [f64],
+    ) {
+        /// Pairs per block: their neighbours' values (64 × 16 × C f64 at most) stay in cache.
+        const LOG_BLOCK: usize = 64;
+        let c = self.channels.len();
+        let most = LOG_BLOCK << layout.d;
+        let mut weights: Vec<f64> = Vec::with_capacity(most);
+        let mut logs: Vec<f64> = Vec::with_capacity(most * c);
+        // Per pair with a valid neighbour: (pair, its neighbours' range, weight sum, post).
+        let mut sums: Vec<(usize, usize, usize, f64, f64)> = Vec::with_capacity(LOG_BLOCK);
+        for (out, pairs) in out.chunks_mut(LOG_BLOCK * c).zip(pairs.chunks(LOG_BLOCK)) {
+            out.fill(0.0);
+            weights.clear();
+            logs.clear();
+            sums.clear();
+            for (p, &(wi, wo)) in pairs.iter().enumerate() {
+                let Some(t) = self.continuous_indices(wi, wo) else {
+                    continue;
+                };
+                let (cells, post) = match self.query_weight(wi, wo) {
+                    QueryWeight::Plain => (None, 1.0),
+                    QueryWeight::Cosine { cells, inv_q } => (Some(cells), inv_q),
+                    QueryWeight::Horizon => continue,
+                };
+                let pre = |flat: usize| cells.map_or(1.0, |cc| cc.at(flat) as f32 as f64);
+                let start = weights.len();
+                let Corners { wsum, tcont, .. } =
+                    self.corners_masked(&t, Interp::Linear, layout, &self.valid[..], |flat, w| {
+                        let m = pre(flat);
+                        weights.push(w);
+                        // `LogSpace::to_log`'s argument.
+                        logs.extend(
+                            self.data[flat * c..(flat + 1) * c]
+                                .iter()
+                                .map(|&v| (m * v as f64) * log.inv_scale),
+                        );
+                    });
+                if wsum > 0.0 {
+                    sums.push((p, start, weights.len(), wsum, post));
+                } else {
+                    let d = layout.d;
+                    if let Some(flat) = self.nearest_valid(&tcont[..d], &layout.strides[..d]) {
+                        let m = pre(flat);
+                        let o = &mut out[p * c..(p + 1) * c];
+                        for (o, &v) in o.iter_mut().zip(&self.data[flat * c..(flat + 1) * c]) {
+                            *o = post * (m * v as f64);
+                        }
+                    }
+                }
+            }
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: `avx2` is only true when the CPU reports AVX2.
+                unsafe { crate::math::log::asinh_in_place_avx2(&mut logs) };
+            } else {
+                crate::math::log::asinh_in_place(&mut logs);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            {
+                let _ = avx2;
+                crate::math::log::asinh_in_place(&mut logs);
+            }
+            for &(p, start, end, wsum, post) in &sums {
+                let o = &mut out[p * c..(p + 1) * c];
+                for (j, &w) in weights[start..end].iter().enumerate() {
+                    let y = &logs[(start + j) * c..(start + j + 1) * c];
+                    for (o, &y) in o.iter_mut().zip(y) {
+                        *o += w * y;
+                    }
+                }
+                for o in o.iter_mut() {
+                    *o = log.finish(*o, wsum, post);
+                }
+            }
         }
     }
 
@@ -2593,6 +2691,23 @@ mod tests {
             (
                 with_holes(&smooth, "halfdiff4:12x8x12x16,space=log:0.05"),
                 "halfdiff4 log space with invalid cells",
+            ),
+            (
+                with_holes(
+                    &ggx,
+                    "halfdiff3:16x12x20,warp=sqrt/grazing/linear,at=edge,horizon=extend,\
+                     space=log:1e-6",
+                ),
+                "halfdiff3 grazing θd, extended, log space (pack's grid) with invalid cells",
+            ),
+            (
+                tabulate(
+                    &smooth,
+                    &parse_grid_spec("spherical4:8x12x8x12,weight=cosine,space=log:0.3").unwrap(),
+                    &TabulateOptions::default(),
+                )
+                .unwrap(),
+                "spherical4 cosine-weighted log space",
             ),
             (
                 tabulate(

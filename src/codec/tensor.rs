@@ -13,7 +13,7 @@
 //! stored planar, channel planes of ny·nx inside each outer index.
 
 use super::coefcode::{self, ContextModel};
-use super::dct;
+use super::dct::{self, Coefficients};
 use super::transform::{Colour, Curve, finite_f32};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
@@ -150,35 +150,41 @@ impl TensorCoding {
                     .map_err(|e| Error::Failure(format!("zstd compression failed: {e}")))
             }
             TensorCoding::Dct {
-                eps,
-                colour,
                 step,
                 deadzone,
                 model,
                 ..
             } => {
-                let curve = Curve::SignedLog { eps: eps.clone() };
-                let n: usize = dims.iter().product();
-                let mut comps = vec![Vec::with_capacity(n); channels];
-                let (mut y, mut z) = (vec![0.0; channels], vec![0.0; channels]);
-                for_each_node(values, dims, channels, |node| {
-                    for (c, &x) in node.iter().enumerate() {
-                        y[c] = curve.forward(x, c);
-                    }
-                    colour.forward(&y, &mut z);
-                    for (comp, &v) in comps.iter_mut().zip(&z) {
-                        comp.push(v);
-                    }
-                });
-                let mut quantized = Vec::with_capacity(channels);
-                for comp in comps {
-                    let coef = dct::forward_owned(comp, dims);
-                    dct::check_range(&coef, *step)?;
-                    quantized.push(coefcode::quantize_deadzone(&coef, dims, *step, *deadzone));
-                }
+                let coef = self.coefficients(values, dims, channels);
+                let quantized = quantize_checked(&coef, dims, *step, *deadzone)?;
                 Ok(coefcode::encode_model(&quantized, *model))
             }
         }
+    }
+
+    /// The DCT coefficients of every colour component of `values` (a [`TensorCoding::Dct`]:
+    /// curve, colour transform, DCT; what does not depend on the step).
+    fn coefficients(&self, values: &[f32], dims: &[usize], channels: usize) -> Vec<Vec<f64>> {
+        let TensorCoding::Dct { eps, colour, .. } = self else {
+            unreachable!("coefficients of a lossless coding")
+        };
+        let curve = Curve::SignedLog { eps: eps.clone() };
+        let n: usize = dims.iter().product();
+        let mut comps = vec![Vec::with_capacity(n); channels];
+        let (mut y, mut z) = (vec![0.0; channels], vec![0.0; channels]);
+        for_each_node(values, dims, channels, |node| {
+            for (c, &x) in node.iter().enumerate() {
+                y[c] = curve.forward(x, c);
+            }
+            colour.forward(&y, &mut z);
+            for (comp, &v) in comps.iter_mut().zip(&z) {
+                comp.push(v);
+            }
+        });
+        comps
+            .into_iter()
+            .map(|comp| dct::forward_owned(comp, dims))
+            .collect()
     }
 
     /// The values of a payload (the inverse of [`TensorCoding::encode`], exactly what the
@@ -212,38 +218,151 @@ impl TensorCoding {
                 }
                 Ok(values)
             }
-            TensorCoding::Dct {
-                eps,
-                colour,
-                step,
-                nonnegative,
-                model,
-                ..
-            } => {
-                let curve = Curve::SignedLog { eps: eps.clone() };
-                let floor = if *nonnegative { 0.0 } else { f32::NEG_INFINITY };
+            TensorCoding::Dct { model, .. } => {
                 let quantized = coefcode::decode(payload, dims, channels, *model)?;
-                let planes: Vec<Vec<f32>> = quantized
-                    .iter()
-                    .map(|q| dct::inverse(q, dims, *step))
-                    .collect();
-                let plane = plane_of(dims);
-                let mut out = vec![0f32; total];
-                let (mut y, mut z) = (vec![0.0; channels], vec![0.0; channels]);
-                for node in 0..n {
-                    let (s, p) = (node / plane, node % plane);
-                    for (zc, pl) in z.iter_mut().zip(&planes) {
-                        *zc = f64::from(pl[node]);
-                    }
-                    colour.inverse(&z, &mut y);
-                    for (c, &yc) in y.iter().enumerate() {
-                        out[(s * channels + c) * plane + p] =
-                            finite_f32(curve.inverse(yc, c)).max(floor);
-                    }
-                }
-                Ok(out)
+                Ok(self.values_of(&quantized, dims, channels))
             }
         }
+    }
+
+    /// The values of quantized coefficients (a [`TensorCoding::Dct`]): what
+    /// [`TensorCoding::decode`] makes of the codes it reads.
+    fn values_of(&self, quantized: &[Coefficients], dims: &[usize], channels: usize) -> Vec<f32> {
+        let TensorCoding::Dct {
+            eps,
+            colour,
+            step,
+            nonnegative,
+            ..
+        } = self
+        else {
+            unreachable!("values of a lossless coding")
+        };
+        let curve = Curve::SignedLog { eps: eps.clone() };
+        let floor = if *nonnegative { 0.0 } else { f32::NEG_INFINITY };
+        let n: usize = dims.iter().product();
+        let planes: Vec<Vec<f32>> = quantized
+            .iter()
+            .map(|q| dct::inverse(q, dims, *step))
+            .collect();
+        let plane = plane_of(dims);
+        let mut out = vec![0f32; n * channels];
+        let (mut y, mut z) = (vec![0.0; channels], vec![0.0; channels]);
+        for node in 0..n {
+            let (s, p) = (node / plane, node % plane);
+            for (zc, pl) in z.iter_mut().zip(&planes) {
+                *zc = f64::from(pl[node]);
+            }
+            colour.inverse(&z, &mut y);
+            for (c, &yc) in y.iter().enumerate() {
+                out[(s * channels + c) * plane + p] = finite_f32(curve.inverse(yc, c)).max(floor);
+            }
+        }
+        out
+    }
+}
+
+/// Every component's coefficients quantized with `step` and `deadzone`, after the encoder's
+/// range check.
+fn quantize_checked(
+    coef: &[Vec<f64>],
+    dims: &[usize],
+    step: f64,
+    deadzone: f64,
+) -> Result<Vec<Coefficients>> {
+    let mut quantized = Vec::with_capacity(coef.len());
+    for c in coef {
+        dct::check_range(c, step)?;
+        quantized.push(coefcode::quantize_deadzone(c, dims, step, deadzone));
+    }
+    Ok(quantized)
+}
+
+/// A tensor made ready for lossy codings that differ in their step alone (the planner's
+/// search for the largest step, `plan::rgl`): the parameters of [`TensorCoding::dct_for`]
+/// and the DCT coefficients, made once; each step then quantizes, codes and decodes them.
+pub struct PreparedTensor {
+    /// The coding at the step it was prepared with (replaced by [`PreparedTensor::coding`]).
+    coding: TensorCoding,
+    dims: Vec<usize>,
+    channels: usize,
+    coef: Vec<Vec<f64>>,
+}
+
+impl PreparedTensor {
+    /// [`TensorCoding::dct_for`] of `values` (any step) and its coefficients.
+    pub fn new(
+        values: &[f32],
+        dims: &[usize],
+        channels: usize,
+        eps_share: f64,
+        deadzone: f64,
+    ) -> Result<PreparedTensor> {
+        check_len(values.len(), dims, channels)?;
+        let coding = TensorCoding::dct_for(values, dims, channels, eps_share, 1.0, deadzone);
+        coding.validate(channels)?;
+        let coef = coding.coefficients(values, dims, channels);
+        Ok(PreparedTensor {
+            coding,
+            dims: dims.to_vec(),
+            channels,
+            coef,
+        })
+    }
+
+    /// The coding with `step`: [`TensorCoding::dct_for`]'s with the same arguments.
+    pub fn coding(&self, step: f64) -> TensorCoding {
+        let mut c = self.coding.clone();
+        if let TensorCoding::Dct { step: s, .. } = &mut c {
+            *s = step;
+        }
+        c
+    }
+
+    /// The coefficients quantized with `step` (the encoder's range check first).
+    pub fn quantize(&self, step: f64) -> Result<QuantizedTensor<'_>> {
+        let coding = self.coding(step);
+        coding.validate(self.channels)?;
+        let TensorCoding::Dct { deadzone, .. } = &coding else {
+            unreachable!("a prepared tensor is lossy")
+        };
+        let codes = quantize_checked(&self.coef, &self.dims, step, *deadzone)?;
+        Ok(QuantizedTensor {
+            prepared: self,
+            coding,
+            codes,
+        })
+    }
+
+    /// The payload of the coding with `step` and the values its decoder reads from it, the
+    /// bits of [`TensorCoding::encode`] and [`TensorCoding::decode`].
+    pub fn encode_and_decode(&self, step: f64) -> Result<(Vec<u8>, Vec<f32>)> {
+        let q = self.quantize(step)?;
+        Ok(rayon::join(|| q.payload(), || q.values()))
+    }
+}
+
+/// A prepared tensor's codes at one step.
+pub struct QuantizedTensor<'a> {
+    prepared: &'a PreparedTensor,
+    coding: TensorCoding,
+    codes: Vec<Coefficients>,
+}
+
+impl QuantizedTensor<'_> {
+    /// The payload: [`TensorCoding::encode`]'s bytes.
+    pub fn payload(&self) -> Vec<u8> {
+        let TensorCoding::Dct { model, .. } = &self.coding else {
+            unreachable!("a prepared tensor is lossy")
+        };
+        coefcode::encode_model(&self.codes, *model)
+    }
+
+    /// The values the payload decodes to, made from the codes (which the context coder
+    /// returns as they were given): [`TensorCoding::decode`]'s bits.
+    pub fn values(&self) -> Vec<f32> {
+        let p = self.prepared;
+        self.coding.values_of(&self.codes, &p.dims, p.channels)
     }
 }
 
@@ -463,5 +582,32 @@ mod tests {
             model: ContextModel::CURRENT,
         };
         assert!(bad.decode(&p, &dims, 3).is_err());
+    }
+
+    /// A prepared tensor's payload and decoded values at any step are the bits of
+    /// `dct_for` + `encode` + `decode`: signed and nonnegative tensors, one and three
+    /// channels, plain rounding and a dead zone, steps from fine to coarse.
+    #[test]
+    fn a_prepared_tensor_codes_and_decodes_as_the_coding_does() {
+        let (signed, dims) = sample();
+        let nonneg: Vec<f32> = signed.iter().map(|v| v.abs() * 3.0).collect();
+        let one: Vec<f32> = signed[..dims.iter().product::<usize>()].to_vec();
+        for (values, channels) in [(&signed, 3), (&nonneg, 3), (&one, 1)] {
+            for (eps_share, deadzone) in [(1e-2, 0.5), (1e-3, 0.75)] {
+                let prepared =
+                    PreparedTensor::new(values, &dims, channels, eps_share, deadzone).unwrap();
+                for step in [1e-4, 3.7e-3, 0.05, 0.8] {
+                    let coding =
+                        TensorCoding::dct_for(values, &dims, channels, eps_share, step, deadzone);
+                    assert_eq!(prepared.coding(step), coding);
+                    let payload = coding.encode(values, &dims, channels).unwrap();
+                    let decoded = coding.decode(&payload, &dims, channels).unwrap();
+                    let (p, d) = prepared.encode_and_decode(step).unwrap();
+                    assert_eq!(p, payload, "payload at step {step}");
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&d), bits(&decoded), "values at step {step}");
+                }
+            }
+        }
     }
 }

@@ -144,6 +144,31 @@ impl RglBsdf {
         Ok(b)
     }
 
+    /// This BRDF with its colour tables and its VNDF replaced (`colour` in the colour field's
+    /// layout, `vndf` in the VNDF's `[Nφ, Nθ, H, W]`, finite and ≥ 0): a candidate of the
+    /// planner whose VNDF is coded. What [`RglBsdf::from_fields`] makes of this BRDF's fields
+    /// with those two replaced, without writing and parsing every field again.
+    pub fn with_colour_and_vndf(&self, colour: &[f32], vndf: &[f32]) -> Result<RglBsdf> {
+        let [w, h] = self.info.vndf_resolution;
+        let slices = self.info.phi_slices * self.info.theta_i.len();
+        if vndf.len() != slices * h * w {
+            return Err(Error::input(format!(
+                "VNDF of {} values, expected {}",
+                vndf.len(),
+                slices * h * w
+            )));
+        }
+        if let Some(v) = vndf.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
+            return Err(Error::input(format!(
+                "VNDF value {v:e}, expected a finite density ≥ 0"
+            )));
+        }
+        let mut b = self.with_colour(colour)?;
+        b.vndf = VndfWarp::build(vndf, slices, h, w)
+            .map_err(|m| Error::input(format!("field `vndf`: {m}")))?;
+        Ok(b)
+    }
+
     /// Parses and validates a tensor file (an RGL `.bsdf`).
     fn from_tensor_bytes(bytes: &[u8], name: &str) -> Result<RglBsdf> {
         let file = TensorFile::parse(bytes, name)?;

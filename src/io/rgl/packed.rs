@@ -163,8 +163,14 @@ impl PackOptions {
 /// curve's inverse can return a hair below 0 next to a zero node).
 pub fn decode_vndf(coding: &TensorCoding, payload: &[u8], dims: &[usize]) -> Result<Vec<f32>> {
     let mut v = coding.decode(payload, dims, 1)?;
-    v.iter_mut().for_each(|x| *x = x.max(0.0));
+    clamp_vndf(&mut v);
     Ok(v)
+}
+
+/// A decoded VNDF as its reader holds it: a density, clamped at 0 (the signed log curve's
+/// inverse can dip below 0 next to a node of 0).
+pub fn clamp_vndf(v: &mut [f32]) {
+    v.iter_mut().for_each(|x| *x = x.max(0.0));
 }
 
 /// The coded axes of a VNDF `[Nφ, Nθ, H, W]` as a one-channel tensor (as [`colour_dims`]).
