@@ -462,10 +462,15 @@ fn anisotropic_files_read_back_close_to_their_source_folded_or_not() {
     // brdfpack reads anisotropic files as Mitsuba does (the (φi, θi) slices blended, the
     // reduction folding; docs/rgl.md measures the agreement with Mitsuba at ~1e-6). Written
     // at reduced resolutions to keep the test short; the same 9 φi slices are 45° apart over
-    // the full turn and 11.25° apart folded, so the folded file is closer (5,000 uniform pairs,
-    // every quadrant of wi; measured: log_rmse 0.045 full, 0.031 folded; p99_rel_core 0.27,
-    // 0.14). A wrong fold for any quadrant would put a quarter of the pairs on another
-    // lobe: errors of order 1.
+    // the full turn and 11.25° apart folded, so the folded file is closer where renders look
+    // (5,000 uniform pairs, every quadrant of wi; measured: p99_rel_core 0.33 full, 0.14
+    // folded; log_rmse 0.023 and 0.026). A wrong fold for any quadrant would put a quarter of
+    // the pairs on another lobe: errors of order 1. (Before the writer fitted the VNDF nodes
+    // next to the horizon across φi slices, `fit_horizon_blend`, the full turn's log_rmse was
+    // 0.045 and the folded file's 0.031, and folding was also required to lower log_rmse by
+    // 0.8×; the fit took the full turn's horizon error, which is what folding reduced, below
+    // the folded file's, so that comparison no longer tells a right fold from a wrong one. The
+    // p99 comparison and both absolute bounds stay.)
     let m = Model::parse("ggx:alpha_x=0.15,alpha_y=0.35,fresnel=au").unwrap();
     let opts = RglWriteOptions {
         theta_slices: 10,
@@ -514,7 +519,7 @@ fn anisotropic_files_read_back_close_to_their_source_folded_or_not() {
         p99[1]
     );
     assert!(
-        log[1] < 0.8 * log[0] && p99[1] < 0.7 * p99[0],
+        p99[1] < 0.7 * p99[0],
         "folding did not help: {log:?} {p99:?}"
     );
 }

@@ -20,12 +20,15 @@
 //!    reaches wo.z = 0 as far as the horizons of the neighbouring rows and slices lie, and a
 //!    constant beyond sets
 //!    the row's conditional CDF at its horizon to 1 − β, the same for every row and slice
-//!    (β = 1/6 of the colour columns). The colour column s_x = 1 − β is then the horizon: it
+//!    (β = 1/6 of the colour columns, 1/3 for unfolded anisotropic files). The colour column s_x = 1 − β is then the horizon: it
 //!    holds f·cos θo = 0 and the nodes inside it hold f·cos θo, so Mitsuba's eval / wo.z
 //!    stays near f next to the horizon instead of growing like 1/wo.z (issue #21: that was
-//!    most of the log error). Last, rows with less than the mean row mass are scaled up to it
+//!    most of the log error). Then rows with less than the mean row mass are scaled up to it
 //!    (a whole row at a time, so its CDF is kept) so that the colour grid's rows resolve every
-//!    azimuth, also behind a grazing wi where the horizon moves fastest.
+//!    azimuth, also behind a grazing wi where the horizon moves fastest. Last, the nodes just
+//!    past each slice's horizon are fitted across slices (`fit_horizon_blend`): Mitsuba blends
+//!    the slices' CDFs, and with the nodes as sampled the blend reaches the horizon column
+//!    past the horizon of a query between slices, where eval / wo.z grows like 1/wo.z.
 //!    The θi slices run from 0 to 89.5° and are graded towards grazing incidence.
 //! 4. `rgb`, `luminance`: per slice, on a uniform n×n grid of the warped sample square: each
 //!    node is mapped through the VNDF warp (Mitsuba's own inversion, solved by bisection, so
@@ -76,6 +79,13 @@ const POLE_FIT_POINTS: usize = 8;
 /// to keep its own density past its horizon as far as the horizons of the neighbouring rows
 /// and slices (with 1/16 most rows had no room for that; 1/4 was no better than 1/6).
 const HORIZON_SHARE_INV: usize = 6;
+/// 1/3 for unfolded anisotropic files: `fit_horizon_blend` puts more density past the horizons
+/// there (φi slices 22.5° apart), and with 1/6 a fifth of the rows × slices had no room for it.
+/// Folded files (slices 5.6° apart) keep 1/6: at 1/3 their p99_rel_core grew (0.026 → 0.031). GGX
+/// αx 0.1, αy 0.3 with the fit: log_rmse 0.0193 at 1/6, 0.0159 at 1/4, 0.0146 at 1/3, 0.0147
+/// at 1/2 (expected values, `hz_probe` in docs/rgl.md); isotropic files keep 1/6 (gold:
+/// 0.0069 at 1/6, 0.0078 at 1/3, where the colour columns inside the horizon count more).
+const HORIZON_SHARE_INV_ANISOTROPIC: usize = 3;
 /// Least mass of a VNDF row relative to the mean row (rows are scaled up to it).
 const ROW_SHARE: f64 = 1.0;
 /// Grading a of the θi slices (denser towards grazing incidence; 0 = uniform).
@@ -175,6 +185,15 @@ pub struct RglWritten {
 /// Writes `src` as an RGL `.bsdf` (RGB). One-channel sources are written as grey RGB;
 /// spectral sources and other channel counts are refused.
 pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
+    write_rgl_fitted(src, opts, true)
+}
+
+/// [`write_rgl`], with or without [`fit_horizon_blend`] (the tests compare both).
+fn write_rgl_fitted(
+    src: &dyn Brdf,
+    opts: &RglWriteOptions,
+    fit_horizon: bool,
+) -> Result<RglWritten> {
     opts.validate()?;
     let nc = src.channels().len();
     if crate::spectral::is_spectral(src.channels()) || (nc != 1 && nc != 3) {
@@ -315,14 +334,16 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
     // 3.–4. Per slice: VNDF density, then the colour nodes through its warp.
     let (h, n) = (opts.vndf_res, opts.colour_res);
     // Share of the colour grid beyond the horizon (align_horizon): a whole number of columns.
-    let beta = (n - 1).div_ceil(HORIZON_SHARE_INV).min((n - 1) / 2).max(1) as f64 / (n - 1) as f64;
-    let built: Vec<Result<SliceTables>> = slices
+    let inv = if isotropic || fold {
+        HORIZON_SHARE_INV
+    } else {
+        HORIZON_SHARE_INV_ANISOTROPIC
+    };
+    let beta = (n - 1).div_ceil(inv).min((n - 1) / 2).max(1) as f64 / (n - 1) as f64;
+    let mut warps: Vec<SliceWarp> = slices
         .par_iter()
         .map(|&(phi_s, theta_s)| {
-            let mut buf = vec![0.0; nc];
             let wi = Vec3::from_spherical(theta_s.min(SLICE_THETA_MAX), phi_s);
-            let u_wi = [(theta_s / FRAC_PI_2).sqrt(), (phi_s + PI) / (2.0 * PI)];
-            let sigma_wi = sigma_grid.eval(u_wi);
             let half = |u: [f64; 2]| -> Vec3 {
                 let phi_m = (2.0 * u[1] - 1.0) * PI + if isotropic { phi_s } else { 0.0 };
                 Vec3::from_spherical(u[0] * u[0] * FRAC_PI_2, phi_m)
@@ -464,6 +485,37 @@ pub fn write_rgl(src: &dyn Brdf, opts: &RglWriteOptions) -> Result<RglWritten> {
                     *v *= sc;
                 }
             }
+            SliceWarp {
+                vndf,
+                row_scale,
+                sum_true,
+                sum_flat,
+            }
+        })
+        .collect();
+    // Where Mitsuba blends θi (and φi) slices, the blended CDF crosses the horizon column
+    // where the query's own horizon lies only if the slices' densities next to their
+    // horizons are chosen together (`fit_horizon_blend`).
+    if fit_horizon {
+        fit_horizon_blend(&mut warps, &theta_i, &phi_i, h, isotropic);
+    }
+    let built: Vec<Result<SliceTables>> = slices
+        .par_iter()
+        .zip(&warps)
+        .map(|(&(phi_s, theta_s), warp_s)| {
+            let mut buf = vec![0.0; nc];
+            let wi = Vec3::from_spherical(theta_s.min(SLICE_THETA_MAX), phi_s);
+            let u_wi = [(theta_s / FRAC_PI_2).sqrt(), (phi_s + PI) / (2.0 * PI)];
+            let sigma_wi = sigma_grid.eval(u_wi);
+            let half = |u: [f64; 2]| -> Vec3 {
+                let phi_m = (2.0 * u[1] - 1.0) * PI + if isotropic { phi_s } else { 0.0 };
+                Vec3::from_spherical(u[0] * u[0] * FRAC_PI_2, phi_m)
+            };
+            let ndf_at = |u: [f64; 2]| ndf_grid.eval([u[0], if isotropic { 0.0 } else { u[1] }]);
+            let (sum_true, sum_flat) = (warp_s.sum_true, warp_s.sum_flat);
+            let kappa = opts.tail_share;
+            let mix_at = |d: f64| (1.0 - kappa) * d / sum_true + kappa / sum_flat;
+            let (vndf, row_scale) = (&warp_s.vndf, &warp_s.row_scale);
             let scale_at = |uy: f64| {
                 let t = uy * (h - 1) as f64;
                 let k = (t.floor() as usize).min(h - 2);
@@ -838,6 +890,430 @@ fn fit_pole_nodes(g: impl Fn(f64) -> f64, width: usize) -> Vec<f64> {
     nodes
 }
 
+/// One slice's warp density before its colour nodes are placed: the VNDF nodes (rows y over
+/// u_φ, columns x over u_θ, after `align_horizon` and the row scaling), the row scale factors
+/// and the two sums of the mixture.
+struct SliceWarp {
+    vndf: Vec<f64>,
+    row_scale: Vec<f64>,
+    sum_true: f64,
+    sum_flat: f64,
+}
+
+/// The u_θ = sqrt(2θm/π) where reflect(wi, m) reaches the horizon for wi at (θ, φ_wi) and m at
+/// azimuth φ_m: wo.z = 2(wi·m) cos θm − cos θi = sin θi sin 2θm cos Δφ + cos θi cos 2θm = 0,
+/// so 2θm = atan2(cos θi, −sin θi cos Δφ) (in (0, π): every row has a horizon).
+fn horizon_u(theta: f64, phi_wi: f64, phi_m: f64) -> f64 {
+    let theta = theta.min(SLICE_THETA_MAX);
+    let two_theta_m = theta.cos().atan2(-theta.sin() * (phi_m - phi_wi).cos());
+    (two_theta_m / PI).sqrt()
+}
+
+/// |d wo.z / d u_θ| at the horizon of [`horizon_u`].
+fn horizon_slope(theta: f64, phi_wi: f64, phi_m: f64, u: f64) -> f64 {
+    let theta = theta.min(SLICE_THETA_MAX);
+    let two_theta_m = u * u * PI;
+    let dz = 2.0
+        * (theta.sin() * two_theta_m.cos() * (phi_m - phi_wi).cos()
+            - theta.cos() * two_theta_m.sin());
+    (dz * PI * u).abs()
+}
+
+/// ∫_a^b of the hat function of node k (nodes at x·du), signed (b < a gives the negative).
+fn hat_integral(k: usize, a: f64, b: f64, du: f64) -> f64 {
+    let anti = |x: f64| {
+        let t = x / du - k as f64;
+        if t <= -1.0 {
+            0.0
+        } else if t <= 0.0 {
+            du * (t + 1.0) * (t + 1.0) * 0.5
+        } else if t <= 1.0 {
+            du * (1.0 - (1.0 - t) * (1.0 - t) * 0.5)
+        } else {
+            du
+        }
+    };
+    anti(b) - anti(a)
+}
+
+/// What [`fit_horizon_blend`] did (read by the tests only).
+#[derive(Clone, Debug, Default)]
+#[cfg_attr(not(test), allow(dead_code))]
+struct HorizonFit {
+    /// Rows × slices whose window alone carried more than the mass beyond the horizon (there
+    /// the nodes from the horizon's cell on are scaled down to it, and the fit is partly lost).
+    overfull: usize,
+    /// Weighted squared horizon misfit (in wo.z) before the fit and of its least-squares
+    /// solution (before the masses are restored).
+    misfit: [f64; 2],
+}
+
+/// One VNDF row's fitted nodes per slice (first node, values) and what the fit did.
+type RowFit = (Vec<(usize, Vec<f64>)>, HorizonFit);
+
+/// Queries per slice cell and parameter of the horizon fit.
+const HORIZON_FIT_QUERIES: usize = 4;
+/// Weight of keeping a node near its value, relative to the misfit it causes over one cell.
+const HORIZON_FIT_REGULARISATION: f64 = 0.05;
+
+/// Chooses the VNDF nodes next to the horizons of every row so that where Mitsuba blends the
+/// θi (and φi) slices, the blended conditional CDF reaches the horizon column 1 − β where the
+/// query's own horizon lies (issue #21). Mitsuba's sample coordinate along a row is
+/// Σ w_s C_s(u) / Σ w_s R_s (C_s the slice's normalised row CDF, R_s its row total), and
+/// every slice's C_s is (1 − β) R_s at its own horizon h_s, so the blend reaches 1 − β at the
+/// u* with Σ w_s ∫_{h_s}^{u*} ρ_s = 0 (ρ_s the normalised density). With the densities left
+/// as they are, u* is about the linear interpolation of the slices' horizons, while the
+/// query's horizon u_q is a convex function of φi (and θi): u* lies past it, and there
+/// f = eval / wo.z grows like 1/wo.z. Per row, the nodes between the lowest and the highest
+/// horizon of each slice's neighbours are fitted by least squares so that
+/// Σ w_s ∫_{h_s}^{u_q} ρ_s ≈ 0 over queries spread over every cell of slices, each residual
+/// converted to the height of wo at which the blended horizon lies (divided by the blended
+/// density, times |d wo.z/du|) and weighted by the query's solid angle; then the row's
+/// constant tail is recomputed so that its CDF is exactly 1 − β at its own horizon again.
+fn fit_horizon_blend(
+    warps: &mut [SliceWarp],
+    theta_i: &[f32],
+    phi_i: &[f32],
+    h: usize,
+    isotropic: bool,
+) -> HorizonFit {
+    let (nt, np) = (theta_i.len(), phi_i.len());
+    let du = 1.0 / (h - 1) as f64;
+    // Mitsuba's normalisation of each slice: 1 / (trapezoid over rows of the row totals).
+    let lambda: Vec<f64> = warps
+        .iter()
+        .map(|w| {
+            let totals: Vec<f64> = w
+                .vndf
+                .chunks_exact(h)
+                .map(|r| r.windows(2).map(|p| (p[0] + p[1]) * 0.5 * du).sum())
+                .collect();
+            let m: f64 = totals.windows(2).map(|p| (p[0] + p[1]) * 0.5 * du).sum();
+            1.0 / m
+        })
+        .collect();
+    let theta: Vec<f64> = theta_i.iter().map(|&t| t as f64).collect();
+    let phi: Vec<f64> = phi_i.iter().map(|&p| p as f64).collect();
+    let rows: Vec<RowFit> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let uy = y as f64 / (h - 1) as f64;
+            let phi_m = (2.0 * uy - 1.0) * PI;
+            // Slice s = p·nt + t; its azimuth of wi relative to the row (isotropic: 0).
+            let phi_wi = |p: usize| if isotropic { 0.0 } else { phi[p] };
+            let hz: Vec<f64> = (0..np * nt)
+                .map(|s| horizon_u(theta[s % nt], phi_wi(s / nt), phi_m))
+                .collect();
+            // Window of fitted nodes per slice: the cells between the lowest and highest
+            // horizon of the slice and its neighbours (clear of the pole fit).
+            let mut window = vec![(0usize, 0usize); np * nt];
+            let mut offset = vec![0usize; np * nt + 1];
+            for s in 0..np * nt {
+                let (p, t) = (s / nt, s % nt);
+                let mut hi = hz[s];
+                for pp in p.saturating_sub(1)..=(p + 1).min(np - 1) {
+                    for tt in t.saturating_sub(1)..=(t + 1).min(nt - 1) {
+                        hi = hi.max(hz[pp * nt + tt]);
+                    }
+                }
+                // Only the nodes past the slice's own horizon move (from the right node of the
+                // cell that straddles it): before the horizon the row keeps its density (the
+                // colour nodes there, and the blend inside the horizon).
+                let a = ((hz[s] / du).floor() as usize + 1).max(POLE_FIT_CELLS + 1);
+                let b = if hi > hz[s] {
+                    ((hi / du).ceil() as usize).min(h - 1)
+                } else {
+                    0
+                };
+                window[s] = (a, b.max(a.saturating_sub(1)));
+                offset[s + 1] = offset[s] + (b + 1).saturating_sub(a);
+            }
+            let n_unknowns = offset[np * nt];
+            let node = |s: usize, x: usize| warps[s].vndf[y * h + x];
+            let density = |s: usize, u: f64| {
+                let t = u / du;
+                let k = (t.floor() as usize).min(h - 2);
+                let f = t - k as f64;
+                node(s, k) + f * (node(s, k + 1) - node(s, k))
+            };
+            // Least-squares rows: Σ coef·Δv = rhs (Δv the change of the unknown nodes).
+            let mut eq_idx: Vec<Vec<usize>> = Vec::new();
+            let mut eq_coef: Vec<Vec<f64>> = Vec::new();
+            let mut eq_rhs: Vec<f64> = Vec::new();
+            let mut misfit0 = 0.0;
+            let q = HORIZON_FIT_QUERIES;
+            let (p_cells, qp) = if np > 1 { (np - 1, q) } else { (1, 1) };
+            // Typical weight per slice (for the regularisation).
+            let mut typical = vec![0f64; np * nt];
+            for pc in 0..p_cells {
+                for tc in 0..nt - 1 {
+                    for a in 0..qp {
+                        for b in 0..q {
+                            let tp = if np > 1 {
+                                (a as f64 + 0.5) / qp as f64
+                            } else {
+                                0.0
+                            };
+                            let tt = (b as f64 + 0.5) / q as f64;
+                            let th = theta[tc] + tt * (theta[tc + 1] - theta[tc]);
+                            let ph = if np > 1 {
+                                phi[pc] + tp * (phi[pc + 1] - phi[pc])
+                            } else {
+                                0.0
+                            };
+                            let corners = if np > 1 {
+                                [
+                                    (pc * nt + tc, (1.0 - tp) * (1.0 - tt)),
+                                    (pc * nt + tc + 1, (1.0 - tp) * tt),
+                                    ((pc + 1) * nt + tc, tp * (1.0 - tt)),
+                                    ((pc + 1) * nt + tc + 1, tp * tt),
+                                ]
+                            } else {
+                                [(tc, 1.0 - tt), (tc + 1, tt), (0, 0.0), (0, 0.0)]
+                            };
+                            let uq = horizon_u(th, ph, phi_m);
+                            let rho: f64 = corners
+                                .iter()
+                                .map(|&(s, w)| w * lambda[s] * density(s, uq))
+                                .sum();
+                            if rho.is_nan() || rho <= 0.0 {
+                                continue;
+                            }
+                            let cell_area = (theta[tc + 1] - theta[tc])
+                                * if np > 1 {
+                                    phi[pc + 1] - phi[pc]
+                                } else {
+                                    2.0 * PI
+                                }
+                                / (q * qp) as f64;
+                            let weight = (th.sin() * cell_area).sqrt()
+                                * horizon_slope(th, ph, phi_m, uq)
+                                / rho;
+                            let mut idx = Vec::new();
+                            let mut coef = Vec::new();
+                            let mut resid = 0.0;
+                            for &(s, w) in &corners {
+                                if w == 0.0 {
+                                    continue;
+                                }
+                                typical[s] = typical[s].max(weight * lambda[s] * w);
+                                let (lo, hi) = (hz[s].min(uq), hz[s].max(uq));
+                                let k0 = (lo / du).floor() as usize;
+                                let k1 = ((hi / du).ceil() as usize).min(h - 1);
+                                for k in k0..=k1 {
+                                    let c = w * lambda[s] * hat_integral(k, hz[s], uq, du);
+                                    resid += c * node(s, k);
+                                    let (wa, wb) = window[s];
+                                    if k >= wa && k <= wb {
+                                        idx.push(offset[s] + k - wa);
+                                        coef.push(c * weight);
+                                    }
+                                }
+                            }
+                            misfit0 += (resid * weight).powi(2);
+                            eq_idx.push(idx);
+                            eq_coef.push(coef);
+                            eq_rhs.push(-resid * weight);
+                        }
+                    }
+                }
+            }
+            // Regularisation: each unknown kept near its value, with the weight of the misfit
+            // a change of it over one cell would cause.
+            for s in 0..np * nt {
+                let (wa, wb) = window[s];
+                for k in wa..=wb.min(h - 1) {
+                    if k < wa || offset[s] + k - wa >= offset[s + 1] {
+                        continue;
+                    }
+                    eq_idx.push(vec![offset[s] + k - wa]);
+                    eq_coef.push(vec![
+                        HORIZON_FIT_REGULARISATION * typical[s].max(1e-300) * du,
+                    ]);
+                    eq_rhs.push(0.0);
+                }
+            }
+            let dv = cgls(&eq_idx, &eq_coef, &eq_rhs, n_unknowns, 200);
+            // Misfit after (for the report).
+            let mut misfit1 = 0.0;
+            for ((idx, coef), rhs) in eq_idx.iter().zip(&eq_coef).zip(&eq_rhs) {
+                let r: f64 = idx.iter().zip(coef).map(|(&i, c)| c * dv[i]).sum::<f64>() - rhs;
+                misfit1 += r * r;
+            }
+            let changes: Vec<(usize, Vec<f64>)> = (0..np * nt)
+                .map(|s| {
+                    let (wa, _) = window[s];
+                    let vals = (offset[s]..offset[s + 1])
+                        .map(|i| (node(s, wa + i - offset[s]) + dv[i]).max(0.0))
+                        .collect();
+                    (wa, vals)
+                })
+                .collect();
+            (
+                changes,
+                HorizonFit {
+                    overfull: 0,
+                    misfit: [misfit0, misfit1],
+                },
+            )
+        })
+        .collect();
+    let mut report = HorizonFit::default();
+    for (y, (changes, fit)) in rows.into_iter().enumerate() {
+        report.misfit[0] += fit.misfit[0];
+        report.misfit[1] += fit.misfit[1];
+        let uy = y as f64 / (h - 1) as f64;
+        let phi_m = (2.0 * uy - 1.0) * PI;
+        for (s, (wa, vals)) in changes.into_iter().enumerate() {
+            if vals.is_empty() {
+                continue;
+            }
+            let row = &mut warps[s].vndf[y * h..][..h];
+            let hs = horizon_u(
+                theta[s % nt],
+                if isotropic { 0.0 } else { phi[s / nt] },
+                phi_m,
+            );
+            let mass = |row: &[f64], a: f64, b: f64| -> f64 {
+                (0..h).map(|k| row[k] * hat_integral(k, a, b, du)).sum()
+            };
+            // The row's masses before and beyond its horizon are kept, and with them its
+            // total (the marginal CDF) and its CDF 1 − β at the horizon: the head (nodes
+            // before the horizon's cell) is scaled by g, and the tail after the window is the
+            // constant c that gives the mass beyond. When the window alone carries more than
+            // that, the tail is 0 and the nodes from the horizon's cell on are scaled by g'
+            // instead (g and g' from the two masses: a 2 × 2 system).
+            let before0 = mass(row, 0.0, hs);
+            let beyond0 = mass(row, hs, 1.0);
+            let last = row[h - 1];
+            let mut tail = h - 1;
+            while tail > 0 && row[tail - 1] == last {
+                tail -= 1;
+            }
+            let original = row.to_vec();
+            let end = wa + vals.len();
+            row[wa..end].copy_from_slice(&vals);
+            let tail = tail.max(end).min(h);
+            let head = ((hs / du).floor() as usize + 1).min(tail);
+            row[tail..].fill(0.0);
+            let part = |row: &[f64], range: std::ops::Range<usize>, a: f64, b: f64| -> f64 {
+                range.map(|k| row[k] * hat_integral(k, a, b, du)).sum()
+            };
+            let (head_b, head_y) = (part(row, 0..head, 0.0, hs), part(row, 0..head, hs, 1.0));
+            let (mid_b, mid_y) = (
+                part(row, head..tail, 0.0, hs),
+                part(row, head..tail, hs, 1.0),
+            );
+            let tail_y: f64 = (tail..h).map(|k| hat_integral(k, hs, 1.0, du)).sum();
+            if head_b <= 0.0 || head == 0 {
+                row.copy_from_slice(&original);
+                continue;
+            }
+            // Two unknowns keep the two masses: the straddling cell's left node (its right
+            // node, moved by the fit, counts partly before the horizon) and either the tail
+            // constant c or, when the window alone carries more than the mass beyond (no
+            // tail), a factor g on the nodes from the straddling cell's right node on. The
+            // head keeps its values: they are the density Mitsuba samples, next to the pole
+            // too.
+            let left = head - 1;
+            let (l_b, l_y) = (
+                hat_integral(left, 0.0, hs, du),
+                hat_integral(left, hs, 1.0, du),
+            );
+            let solve = |a: [f64; 2], b: [f64; 2], r: [f64; 2]| -> Option<[f64; 2]> {
+                // x·a + y·b = r.
+                let det = a[0] * b[1] - a[1] * b[0];
+                (det != 0.0).then(|| {
+                    [
+                        (r[0] * b[1] - r[1] * b[0]) / det,
+                        (a[0] * r[1] - a[1] * r[0]) / det,
+                    ]
+                })
+            };
+            let want = [before0 - head_b - mid_b, beyond0 - head_y - mid_y];
+            if tail_y > 0.0
+                && let Some([dl, c]) = solve([l_b, l_y], [0.0, tail_y], want)
+                && c >= 0.0
+                && row[left] + dl >= 0.0
+            {
+                row[left] += dl;
+                row[tail..].fill(c);
+                continue;
+            }
+            report.overfull += 1;
+            // Δl·l + (g − 1)·mid = want.
+            if let Some([dl, g1]) = solve([l_b, l_y], [mid_b, mid_y], want)
+                && g1 + 1.0 >= 0.0
+                && row[left] + dl >= 0.0
+            {
+                row[left] += dl;
+                row[head..tail].iter_mut().for_each(|v| *v *= g1 + 1.0);
+                continue;
+            }
+            // No non-negative scaling keeps both masses: the row as it was.
+            row.copy_from_slice(&original);
+        }
+    }
+    report
+}
+
+/// Least squares min Σ_r (Σ_j A_rj x_j − b_r)² by conjugate gradients on the normal
+/// equations (CGLS), from x = 0, `iterations` at most. Rows are sparse (index, value) lists.
+fn cgls(
+    idx: &[Vec<usize>],
+    coef: &[Vec<f64>],
+    rhs: &[f64],
+    n: usize,
+    iterations: usize,
+) -> Vec<f64> {
+    let apply = |x: &[f64]| -> Vec<f64> {
+        idx.iter()
+            .zip(coef)
+            .map(|(i, c)| i.iter().zip(c).map(|(&j, v)| v * x[j]).sum())
+            .collect()
+    };
+    let apply_t = |r: &[f64]| -> Vec<f64> {
+        let mut out = vec![0.0; n];
+        for ((i, c), rv) in idx.iter().zip(coef).zip(r) {
+            for (&j, v) in i.iter().zip(c) {
+                out[j] += v * rv;
+            }
+        }
+        out
+    };
+    let mut x = vec![0.0; n];
+    let mut r = rhs.to_vec();
+    let mut s = apply_t(&r);
+    let mut p = s.clone();
+    let mut gamma: f64 = s.iter().map(|v| v * v).sum();
+    let gamma0 = gamma;
+    for _ in 0..iterations {
+        if gamma.is_nan() || gamma <= 1e-24 * gamma0 {
+            break;
+        }
+        let q = apply(&p);
+        let qq: f64 = q.iter().map(|v| v * v).sum();
+        if qq.is_nan() || qq <= 0.0 {
+            break;
+        }
+        let alpha = gamma / qq;
+        for (xv, pv) in x.iter_mut().zip(&p) {
+            *xv += alpha * pv;
+        }
+        for (rv, qv) in r.iter_mut().zip(&q) {
+            *rv -= alpha * qv;
+        }
+        s = apply_t(&r);
+        let g: f64 = s.iter().map(|v| v * v).sum();
+        let beta = g / gamma;
+        gamma = g;
+        for (pv, sv) in p.iter_mut().zip(&s) {
+            *pv = sv + beta * *pv;
+        }
+    }
+    x
+}
+
 struct SliceTables {
     vndf: Vec<f32>,
     luminance: Vec<f32>,
@@ -1056,6 +1532,172 @@ mod tests {
         let (lo, hi) = range(&nodal, 2..POLE_FIT_CELLS);
         assert!(lo > 0.999 && hi > 1.12, "nodal, cells 2..: [{lo}, {hi}]");
         assert!(pole_misfit(&nodal, jacobian, width) > 2.0 * best);
+    }
+
+    #[test]
+    fn horizon_u_is_where_the_reflected_direction_reaches_the_horizon() {
+        for (theta, phi_wi, phi_m) in [
+            (0.0, 0.0, 1.0),
+            (0.7, 0.3, 2.9),
+            (1.4, -2.0, 0.5),
+            (1.2, 1.0, 1.0),
+        ] {
+            let u = horizon_u(theta, phi_wi, phi_m);
+            let wo_z = |u: f64| {
+                let wi = Vec3::from_spherical(theta, phi_wi);
+                let m = Vec3::from_spherical(u * u * FRAC_PI_2, phi_m);
+                2.0 * wi.dot(m) * m.z - wi.z
+            };
+            assert!(
+                wo_z(u).abs() < 1e-12,
+                "{theta} {phi_wi} {phi_m}: {}",
+                wo_z(u)
+            );
+            let d = 1e-6;
+            let slope = (wo_z(u + d) - wo_z(u - d)) / (2.0 * d);
+            let want = horizon_slope(theta, phi_wi, phi_m, u);
+            assert!(
+                (slope.abs() - want).abs() < 1e-6 * want,
+                "{slope} vs {want}"
+            );
+        }
+        assert!((hat_integral(3, 0.0, 1.0, 0.1) - 0.1).abs() < 1e-15);
+        assert!((hat_integral(3, 0.35, 0.25, 0.1) + 0.075).abs() < 1e-15);
+    }
+
+    /// Mean squared log error (as `log_rmse`) of a written file against its source over pairs
+    /// with wi uniform and wo.z uniform in [z0, z1], times z1 − z0 (that band's share of the
+    /// uniform set's mean).
+    fn band_error(file: &super::super::RglBsdf, src: &dyn Brdf, z0: f64, z1: f64) -> f64 {
+        let mut rng = crate::math::SplitMix64::new(21);
+        let n = 20_000;
+        let dir = |rng: &mut crate::math::SplitMix64, z: f64| {
+            Vec3::from_spherical(z.acos(), 2.0 * PI * rng.next_f64())
+        };
+        let (mut a, mut b) = ([0.0; 3], [0.0; 3]);
+        let mut sum = 0.0;
+        for _ in 0..n {
+            let zi = rng.next_f64();
+            let wi = dir(&mut rng, zi);
+            let zo = z0 + (z1 - z0) * rng.next_f64();
+            let wo = dir(&mut rng, zo);
+            file.eval(wi, wo, &mut a);
+            src.eval(wi, wo, &mut b);
+            for c in 0..3 {
+                sum += crate::check::log_error(b[c], a[c], wi.z).powi(2) / 3.0;
+            }
+        }
+        sum / n as f64 * (z1 - z0)
+    }
+
+    #[test]
+    fn the_horizon_fit_puts_the_blended_horizon_where_the_query_has_it() {
+        // A small anisotropic GGX gold: φi slices 45° apart, as far apart as the horizons of
+        // the default file's blended slices are (the fit's error is there).
+        let src = crate::model::Model::parse("ggx:alpha_x=0.1,alpha_y=0.3,fresnel=au").unwrap();
+        let opts = RglWriteOptions {
+            theta_slices: 10,
+            phi_slices: 9,
+            ndf_res: 32,
+            ndf_phi_res: 17,
+            vndf_res: 48,
+            colour_res: 24,
+            ..RglWriteOptions::default()
+        };
+        let read = |fit: bool| {
+            let w = write_rgl_fitted(&src, &opts, fit).unwrap();
+            super::super::RglBsdf::from_bytes(&w.bytes, "x").unwrap()
+        };
+        let (fitted, nodal) = (read(true), read(false));
+        // Next to the horizon (θo > 88.9°) the error falls, inside it it stays.
+        let (near_fit, near_nodal) = (
+            band_error(&fitted, &src, 0.0, 0.02),
+            band_error(&nodal, &src, 0.0, 0.02),
+        );
+        let (in_fit, in_nodal) = (
+            band_error(&fitted, &src, 0.02, 1.0),
+            band_error(&nodal, &src, 0.02, 1.0),
+        );
+        assert!(
+            near_fit < 0.6 * near_nodal,
+            "horizon band: {near_fit:.3e} fitted vs {near_nodal:.3e}"
+        );
+        assert!(
+            in_fit < 1.1 * in_nodal,
+            "inside: {in_fit:.3e} fitted vs {in_nodal:.3e}"
+        );
+    }
+
+    #[test]
+    fn the_horizon_fit_keeps_every_rows_masses_and_lowers_its_misfit() {
+        // Slices of a smooth density (rows over φm, columns over u_θ) with a constant tail
+        // beyond each row's horizon, as `align_horizon` leaves them.
+        let (h, nt, np) = (40, 6, 5);
+        let theta: Vec<f32> = (0..nt).map(|k| (0.25 * k as f64) as f32).collect();
+        let phi: Vec<f32> = (0..np).map(|p| (-PI + 0.4 * p as f64) as f32).collect();
+        let du = 1.0 / (h - 1) as f64;
+        let mut warps: Vec<SliceWarp> = (0..np * nt)
+            .map(|s| {
+                let (t, p) = (theta[s % nt] as f64, phi[s / nt] as f64);
+                let mut vndf = vec![0.0; h * h];
+                for y in 0..h {
+                    let phi_m = (2.0 * y as f64 / (h - 1) as f64 - 1.0) * PI;
+                    let hz = horizon_u(t, p, phi_m);
+                    for x in 0..h {
+                        let u = x as f64 * du;
+                        vndf[y * h + x] = if u < hz + 3.0 * du {
+                            u * (1.5 + (phi_m - p).cos()) * (1.0 + t)
+                        } else {
+                            // A tail with room for the fit (β ≈ 1/3 as for anisotropic files).
+                            1.5
+                        };
+                    }
+                }
+                SliceWarp {
+                    vndf,
+                    row_scale: vec![1.0; h],
+                    sum_true: 1.0,
+                    sum_flat: 1.0,
+                }
+            })
+            .collect();
+        let masses = |w: &[SliceWarp]| -> Vec<[f64; 2]> {
+            let mut out = Vec::new();
+            for (s, warp) in w.iter().enumerate() {
+                for y in 0..h {
+                    let phi_m = (2.0 * y as f64 / (h - 1) as f64 - 1.0) * PI;
+                    let hz = horizon_u(theta[s % nt] as f64, phi[s / nt] as f64, phi_m);
+                    let row = &warp.vndf[y * h..][..h];
+                    let m = |a: f64, b: f64| -> f64 {
+                        (0..h).map(|k| row[k] * hat_integral(k, a, b, du)).sum()
+                    };
+                    out.push([m(0.0, hz), m(hz, 1.0)]);
+                }
+            }
+            out
+        };
+        let before = masses(&warps);
+        let fit = fit_horizon_blend(&mut warps, &theta, &phi, h, false);
+        assert!(fit.misfit[1] < 0.2 * fit.misfit[0], "{fit:?}");
+        for (a, b) in before.iter().zip(masses(&warps)) {
+            for k in 0..2 {
+                assert!((a[k] - b[k]).abs() <= 1e-12 * (a[0] + a[1]), "{a:?} {b:?}");
+            }
+        }
+        assert!(
+            warps
+                .iter()
+                .all(|w| w.vndf.iter().all(|v| v.is_finite() && *v >= 0.0))
+        );
+        // The misfit of the result (the fit run again measures it before fitting): what the
+        // nodal values gave is at least 4 times as much.
+        let again = fit_horizon_blend(&mut warps, &theta, &phi, h, false);
+        assert!(
+            again.misfit[0] < 0.25 * fit.misfit[0],
+            "{:.3e} after vs {:.3e} before",
+            again.misfit[0],
+            fit.misfit[0]
+        );
     }
 
     #[test]
