@@ -186,28 +186,13 @@ fn main() {
         by_tdeg[((t.to_degrees() / 10.0) as usize).min(8)] += e.0;
         tot += e.0;
     }
-    println!(
-        "  band by θi frac : {}",
-        by_ti
-            .iter()
+    let shares = |bins: &[f64]| {
+        bins.iter()
             .map(|v| format!("{:.3}", v / tot))
             .collect::<Vec<_>>()
             .join(" ")
-    );
-    println!(
-        "  band by φi frac : {}",
-        by_pf
-            .iter()
-            .map(|v| format!("{:.3}", v / tot))
-            .collect::<Vec<_>>()
-            .join(" ")
-    );
-    println!(
-        "  band by θi 10°  : {}",
-        by_tdeg
-            .iter()
-            .map(|v| format!("{:.3}", v / tot))
-            .collect::<Vec<_>>()
-            .join(" ")
-    );
+    };
+    println!("  band by θi frac : {}", shares(&by_ti));
+    println!("  band by φi frac : {}", shares(&by_pf));
+    println!("  band by θi 10°  : {}", shares(&by_tdeg));
 }
