@@ -158,26 +158,21 @@ const DEFAULT_REFINE_ONCE: u32 = 1;
 /// Passes of the refined fill for an accepted file of `payload` bytes, at least `at_least`
 /// (the variant's [`Variant::refine_once`]). A pass costs the same on every file of a grid
 /// (an inverse and a forward DCT of each plane, made again at each of up to
-/// [`REFINED_TRIES`] steps), while what it saves grows with the file: on 14 MERL-grid
-/// measured tables at the production budget, 2 passes (λ 1.5) and 4 (λ 1.8,
-/// [`MANY_PASS_RELAXATION`]) made the files a median 0.92 and 0.85 of one pass's (0.82–0.99
-/// and 0.67–0.94; black-phenolic 27.7 → 22.7 → 18.6 KB), 3–5% of the payload a pass, so more passes are made only where that is hundreds of
-/// bytes: 2 from [`TWO_PASSES_FROM`], 4 from [`FOUR_PASSES_FROM`].
+/// [`REFINED_TRIES`] steps: ~0.25 s on the MERL grid), while what it saves grows with the
+/// file: on 14 MERL-grid measured tables at the production budget, 2 passes (λ 1.5) and 4
+/// (λ 1.8, [`MANY_PASS_RELAXATION`]) made the files a median 0.92 and 0.85 of one pass's
+/// (0.82–0.99 and 0.67–0.94; black-phenolic 27.7 → 22.7 → 18.6 KB). Made from 8 KiB, 2
+/// passes cost gold-metallic-paint 0.75 s (1.92 → 2.67 s, over issue #19's 2 s) for 5% of its
+/// bytes; so only a file of [`MANY_PASSES_FROM`] or more gets more passes, 4 of them, where
+/// the same time buys a quarter of the file (black-phenolic 2.6 → 3.6 s).
 fn refine_passes(at_least: u32, payload: usize) -> u32 {
-    let by_size = if payload >= FOUR_PASSES_FROM {
-        4
-    } else if payload >= TWO_PASSES_FROM {
-        2
-    } else {
-        1
-    };
+    let by_size = if payload >= MANY_PASSES_FROM { 4 } else { 1 };
     at_least.max(by_size)
 }
 
-/// Payload bytes from which the refined fill makes 2 passes ([`refine_passes`]).
-const TWO_PASSES_FROM: usize = 8 * 1024;
-/// Payload bytes from which the refined fill makes 4 passes ([`refine_passes`]).
-const FOUR_PASSES_FROM: usize = 20 * 1024;
+/// Payload bytes (of the accepted file before its refined fill) from which the refined fill
+/// makes 4 passes ([`refine_passes`]).
+const MANY_PASSES_FROM: usize = 24 * 1024;
 
 /// The relaxation of a refined fill of more than one pass. One pass is made with
 /// [`FILL_RELAXATION`] (λ 1.75 gained nothing over 1.5 there); over several, a longer step
@@ -2144,9 +2139,8 @@ mod tests {
         assert!(one < plain, "{one} vs {plain}");
         assert!(two < one, "{two} vs {one}");
         assert!(four < two, "{four} vs {two}");
-        assert_eq!(refine_passes(1, TWO_PASSES_FROM - 1), 1);
-        assert_eq!(refine_passes(1, TWO_PASSES_FROM), 2);
-        assert_eq!(refine_passes(1, FOUR_PASSES_FROM), 4);
+        assert_eq!(refine_passes(1, MANY_PASSES_FROM - 1), 1);
+        assert_eq!(refine_passes(1, MANY_PASSES_FROM), 4);
         assert_eq!(refine_passes(8, 1), 8);
     }
 
