@@ -95,7 +95,11 @@ impl Effort {
     /// alone made files 0–17% larger where the metric's had won (13 NBRDF fits of MERL
     /// metals and the zoo's peaks; hematite at production 18.6 → 21.8 KB) and is the one
     /// that wins by far where it matters (a bare α 0.01 peak: 88 KB against 409 KB).
-    fn variants(self, cells: usize, curve_scale: f64) -> Vec<Variant> {
+    ///
+    /// `has_invalid`: whether the table has invalid cells to fill. Without them a refined
+    /// fill is the plain one, and its variant another run of the same (`max` on an extended
+    /// grid spent 2 s on it), so no variant refines.
+    fn variants(self, cells: usize, has_invalid: bool, curve_scale: f64) -> Vec<Variant> {
         let mut all = self.all_variants();
         if cells > F32_PLANE_CELLS {
             all.retain(|v| v.refine == 0);
@@ -113,6 +117,12 @@ impl Effort {
                     refine_once: DEFAULT_REFINE_ONCE,
                     raise: 1.0,
                 }),
+            }
+        }
+        if !has_invalid {
+            for v in &mut all {
+                v.refine = 0;
+                v.refine_once = 0;
             }
         }
         all
@@ -339,7 +349,8 @@ pub fn prepare_coefficients(
     effort: Effort,
     progress: Progress,
 ) -> Option<Prepared> {
-    let variants = effort.variants(table.grid().cells(), curve_scale);
+    let has_invalid = table.valid().iter().any(|&v| !v);
+    let variants = effort.variants(table.grid().cells(), has_invalid, curve_scale);
     let scale = variants[0].eps_scale;
     if variants
         .iter()
@@ -445,15 +456,12 @@ fn encode(
     let channels = access.table().channels().len();
     let eps_of = |scale: f64| curve_eps(channels, est.epsilon(), scale, curve_floor.as_deref());
     // Variants whose curves the floor makes the same are one variant.
-    let mut variants = effort.variants(access.table().grid().cells(), est.curve_scale(budget));
-    if access.table().valid().iter().all(|&v| v) {
-        // No invalid cell to fill: a refined fill is the plain one, and its variant another
-        // run of the same (`max` on an extended grid spent 2 s on it).
-        for v in &mut variants {
-            v.refine = 0;
-            v.refine_once = 0;
-        }
-    }
+    let has_invalid = access.table().valid().iter().any(|&v| !v);
+    let mut variants = effort.variants(
+        access.table().grid().cells(),
+        has_invalid,
+        est.curve_scale(budget),
+    );
     let mut seen: Vec<(Vec<f64>, f64, u32, u32)> = Vec::new();
     variants.retain(|v| {
         let key = (eps_of(v.eps_scale), v.deadzone, v.refine, v.refine_once);
