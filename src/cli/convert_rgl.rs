@@ -5,6 +5,7 @@
 use super::common::{Lookup, Source};
 use super::convert::ConvertArgs;
 use crate::io::atomic;
+use crate::io::rgl::fidelity::refuse_unrepresentable;
 use crate::io::rgl::write::{RglWriteOptions, write_rgl};
 use clap::Args;
 
@@ -104,8 +105,24 @@ pub fn run(a: &ConvertArgs, input: Source) -> anyhow::Result<i32> {
         crate::table::Interp::Nearest => Lookup::Nearest,
     })?;
     let written = write_rgl(brdf.as_ref(), &a.rgl.options())?;
+    // Measured before anything is written: a lobe the file's nodes cannot hold is refused.
+    let fidelity = refuse_unrepresentable(
+        brdf.as_ref(),
+        &written.bytes,
+        &a.output.display().to_string(),
+    )?;
     atomic::write_output(&a.output, &written.bytes)?;
     if a.verbose {
+        eprintln!(
+            "brdfpack: the file's directional albedo against the source's: max |Δ| {:.2e} \
+             (at θi {:.2}°, φi {:.0}°: {:.4} against {:.4}; {:.0}% of the refusal threshold)",
+            fidelity.max_abs_diff,
+            fidelity.theta_i_deg,
+            fidelity.phi_i_deg,
+            fidelity.file,
+            fidelity.source,
+            100.0 * fidelity.threshold_share
+        );
         for note in &written.notes {
             eprintln!("brdfpack: note: {note}");
         }
@@ -121,6 +138,20 @@ pub fn run(a: &ConvertArgs, input: Source) -> anyhow::Result<i32> {
     } else {
         for note in &written.notes {
             eprintln!("brdfpack: note: {note}");
+        }
+    }
+    if a.json {
+        let text = serde_json::json!({
+            "output": a.output.display().to_string(),
+            "format": "Rgl",
+            "bytes": written.bytes.len(),
+            "albedo_fidelity": fidelity,
+        })
+        .to_string();
+        if a.output.as_os_str() == "-" {
+            eprintln!("{text}");
+        } else {
+            outln!("{text}");
         }
     }
     Ok(0)

@@ -8,6 +8,7 @@
 //! one-sided (0 when wi.z ≤ 0 or wo.z ≤ 0); negative table values are passed through unless
 //! [`RglBsdf::with_clamp_negative`] asks for them to be clamped at 0 (as powitacq does).
 
+pub mod fidelity;
 pub mod fields;
 pub mod packed;
 pub mod tensor;
