@@ -49,13 +49,13 @@ fn isotropic_file_has_every_field_mitsuba_reads() {
         desc.contains("\"alpha\":0.2") && desc.contains("power iteration"),
         "{desc}"
     );
-    // θi slices from 0 to 89.5° (float32), denser towards grazing: θ(t) = θmax·(t + 0.7 t(1−t)).
+    // θi slices from 0 to 89.5° (float32), denser towards grazing: θ(t) = θmax·(t + 0.8 t(1−t)).
     let th = tf.f32_values(tf.get("theta_i").unwrap()).unwrap();
     assert_eq!(th[0], 0.0);
     assert_eq!(th[5], 89.5f64.to_radians() as f32);
     assert_eq!(
         th[1],
-        (89.5f64.to_radians() * (0.2 + 0.7 * 0.2 * 0.8)) as f32
+        (89.5f64.to_radians() * (0.2 + 0.8 * 0.2 * 0.8)) as f32
     );
     assert!(th.windows(3).all(|w| w[2] - w[1] < w[1] - w[0]), "{th:?}");
     // The NDF is normalised like a standard one: σ(normal) = ∫ D cos θm dm = 1.
