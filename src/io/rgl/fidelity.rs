@@ -3,9 +3,9 @@
 //! accurate to 1e-4 on smooth sources).
 //!
 //! The file's NDF, VNDF warp and colour grid have a fixed resolution; a lobe narrower than
-//! their nodes (GGX gold at α 1e-4: half-widths of 0.006° against VNDF cells of ~0.7°) is
+//! their nodes (GGX gold at α 1e-4: a half-width of 0.006°, far inside the first VNDF cell) is
 //! written as a wider one with the peak's height, and the file reflects up to 6× the energy
-//! the source does (albedo 6.08 at θi 85°, where gold's is 0.98). `convert` measured nothing
+//! the source does (albedo 6.15 at θi 85°, where gold's is 0.98). `convert` measured nothing
 //! and wrote it with exit 0. The albedo is the quantity a renderer shows for any lobe, wide
 //! or narrow, so it is the test: a file whose albedo differs from the source's by more than
 //! [`ALBEDO_REFUSAL_SHARE`] of it (plus [`ALBEDO_REFUSAL_FLOOR`]) is not written.
@@ -20,10 +20,10 @@ use serde::Serialize;
 /// A file is refused when |a_file − a_source| exceeds this share of a_source (plus the floor)
 /// at some incidence angle and channel: a gross failure, not a grade. At the default
 /// resolutions the files of rough to glossy lobes stay far below it (GGX gold: 2e-3 at α 0.2
-/// and 0.03, 0.017 at α 0.001, 0.038 at α 5e-4, about 4% of its albedo), and a coarse file
-/// passes too (a Lambertian surface on 8 θi slices misses its albedo at θi 85° by 10%,
-/// between the last two slices); GGX gold at α 3e-4 is off by 0.35 (37%) and at α 1e-4 by
-/// 5.1 (docs/rgl.md).
+/// and 0.03, 0.013 at α 0.001, 0.038 at α 5e-4, about 4% of its albedo), and a coarse file
+/// passes too (GGX gold at α 0.2 on 2 θi slices misses its albedo by 0.10 at θi 57°, 43% of
+/// the threshold); GGX gold at α 3e-4 is off by 0.37 (38%) and at α 1e-4 by
+/// 5.2 (docs/rgl.md).
 pub const ALBEDO_REFUSAL_SHARE: f64 = 0.25;
 /// Absolute part of the refusal threshold: a dark source (albedo 0.002) is not refused for
 /// differences no render shows.
