@@ -369,6 +369,19 @@ pub fn albedo_angles_deg() -> [f64; 16] {
     std::array::from_fn(|i| i as f64 * 85.0 / 15.0)
 }
 
+/// The (θi, φi) pairs, in degrees, at which albedo is reported for `brdf`: the angles of
+/// [`albedo_angles_deg`] at φi = 0°, and at 90° too when the source is anisotropic.
+pub fn albedo_angle_pairs_deg(brdf: &dyn Brdf) -> Vec<(f64, f64)> {
+    let phis: &[f64] = if brdf.is_isotropic() {
+        &[0.0]
+    } else {
+        &[0.0, 90.0]
+    };
+    phis.iter()
+        .flat_map(|&p| albedo_angles_deg().map(|t| (t, p)))
+        .collect()
+}
+
 /// Sampling options for [`props`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct PropsOptions {
@@ -752,16 +765,7 @@ pub fn props(brdf: &dyn Brdf, options: &PropsOptions) -> PropsReport {
     }
     iso.holds = iso.max_rel_diff <= SYMMETRY_TOLERANCE;
 
-    // Albedo at the reported angles (φi = 90° too when the source is anisotropic).
-    let phis: &[f64] = if brdf.is_isotropic() {
-        &[0.0]
-    } else {
-        &[0.0, 90.0]
-    };
-    let angles: Vec<(f64, f64)> = phis
-        .iter()
-        .flat_map(|&p| albedo_angles_deg().map(|t| (t, p)))
-        .collect();
+    let angles = albedo_angle_pairs_deg(brdf);
     let albedo: Vec<AlbedoRow> = angles
         .par_iter()
         .map(|&(t, p)| {

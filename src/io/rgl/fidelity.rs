@@ -12,7 +12,7 @@
 
 use crate::brdf::Brdf;
 use crate::io::rgl::RglBsdf;
-use crate::props::{albedo_angles_deg, directional_albedo_at};
+use crate::props::{albedo_angle_pairs_deg, directional_albedo_at};
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -47,18 +47,10 @@ pub struct AlbedoFidelity {
 }
 
 /// The directional albedo of `file` against `source` at the 16 angles of
-/// [`albedo_angles_deg`] (φi 0°, and 90° for an anisotropic source). A one-channel source is
+/// [`albedo_angle_pairs_deg`] (φi 0°, and 90° for an anisotropic source). A one-channel source is
 /// compared with each of the file's grey channels.
 pub fn albedo_fidelity(source: &dyn Brdf, file: &RglBsdf) -> AlbedoFidelity {
-    let phis: &[f64] = if source.is_isotropic() {
-        &[0.0]
-    } else {
-        &[0.0, 90.0]
-    };
-    let angles: Vec<(f64, f64)> = phis
-        .iter()
-        .flat_map(|&p| albedo_angles_deg().map(|t| (t, p)))
-        .collect();
+    let angles = albedo_angle_pairs_deg(source);
     let rows: Vec<AlbedoFidelity> = angles
         .par_iter()
         .map(|&(t, p)| {

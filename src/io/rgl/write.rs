@@ -1626,6 +1626,22 @@ mod tests {
     /// Mean squared log error (as `log_rmse`) of a written file against its source over pairs
     /// with wi uniform and wo.z uniform in [z0, z1], times z1 − z0 (that band's share of the
     /// uniform set's mean).
+    /// [`band_error`] next to the horizon (wo.z < 0.02) and inside it of `src` written with
+    /// and without the horizon fit: [near fitted, near unfitted, inside fitted, inside unfitted].
+    fn fitted_and_nodal_errors(src: &dyn Brdf, opts: &RglWriteOptions) -> [f64; 4] {
+        let read = |fit: bool| {
+            let w = write_rgl_fitted(src, opts, fit).unwrap();
+            super::super::RglBsdf::from_bytes(&w.bytes, "x").unwrap()
+        };
+        let (fitted, nodal) = (read(true), read(false));
+        [
+            band_error(&fitted, src, 0.0, 0.02),
+            band_error(&nodal, src, 0.0, 0.02),
+            band_error(&fitted, src, 0.02, 1.0),
+            band_error(&nodal, src, 0.02, 1.0),
+        ]
+    }
+
     fn band_error(file: &super::super::RglBsdf, src: &dyn Brdf, z0: f64, z1: f64) -> f64 {
         let mut rng = crate::math::SplitMix64::new(21);
         let n = 20_000;
@@ -1662,20 +1678,8 @@ mod tests {
             colour_res: 24,
             ..RglWriteOptions::default()
         };
-        let read = |fit: bool| {
-            let w = write_rgl_fitted(&src, &opts, fit).unwrap();
-            super::super::RglBsdf::from_bytes(&w.bytes, "x").unwrap()
-        };
-        let (fitted, nodal) = (read(true), read(false));
         // Next to the horizon (θo > 88.9°) the error falls, inside it it stays.
-        let (near_fit, near_nodal) = (
-            band_error(&fitted, &src, 0.0, 0.02),
-            band_error(&nodal, &src, 0.0, 0.02),
-        );
-        let (in_fit, in_nodal) = (
-            band_error(&fitted, &src, 0.02, 1.0),
-            band_error(&nodal, &src, 0.02, 1.0),
-        );
+        let [near_fit, near_nodal, in_fit, in_nodal] = fitted_and_nodal_errors(&src, &opts);
         assert!(
             near_fit < 0.6 * near_nodal,
             "horizon band: {near_fit:.3e} fitted vs {near_nodal:.3e}"
@@ -1749,19 +1753,7 @@ mod tests {
         // it trades some error at the slices' angles for less between them.)
         let src = crate::model::Model::parse("ggx:alpha=0.2,fresnel=au").unwrap();
         let opts = RglWriteOptions::default();
-        let read = |fit: bool| {
-            let w = write_rgl_fitted(&src, &opts, fit).unwrap();
-            super::super::RglBsdf::from_bytes(&w.bytes, "x").unwrap()
-        };
-        let (fitted, nodal) = (read(true), read(false));
-        let (near_fit, near_nodal) = (
-            band_error(&fitted, &src, 0.0, 0.02),
-            band_error(&nodal, &src, 0.0, 0.02),
-        );
-        let (in_fit, in_nodal) = (
-            band_error(&fitted, &src, 0.02, 1.0),
-            band_error(&nodal, &src, 0.02, 1.0),
-        );
+        let [near_fit, near_nodal, in_fit, in_nodal] = fitted_and_nodal_errors(&src, &opts);
         println!(
             "isotropic: near {near_fit:.3e} vs {near_nodal:.3e}, inside {in_fit:.3e} vs {in_nodal:.3e}"
         );
