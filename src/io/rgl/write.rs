@@ -1057,7 +1057,8 @@ fn fit_horizon_blend(
     };
     // Queries per cell and axis: HORIZON_FIT_QUERIES for isotropic files; anisotropic ones
     // have 16 times the cells (φi): 2 per axis (θi, φi, row) keep the joint system at ~500,000
-    // equations (default file: 35 s and 851 MB peak for the whole conversion, against 26 s and
+    // equations (default file: 35 s and 620 MB peak for the whole conversion, 851 MB with two
+    // heap lists per equation, against 26 s and
     // 520 MB with each row fitted alone; 4 per θi and φi took 52 s and 1.24 GB for no better
     // file).
     let (q, q_row) = if np > 1 {
@@ -1069,14 +1070,16 @@ fn fit_horizon_blend(
     // Equations per row cell (rows y, y + 1): queries spread over every cell of rows × slices,
     // each with the 4 (isotropic) or 8 corners Mitsuba blends. Each equation: (unknown, coef)
     // list, rhs, and the corners' weights for the regularisation's scale.
-    type Eq = (Vec<usize>, Vec<f64>, f64, f64);
-    // A row cell's equations and the (row × slice, weight) pairs of its corners.
-    type CellEqs = (Vec<Eq>, Vec<(usize, f64)>);
+    // A row cell's equations (rows, with each one's squared residual at the start) and the
+    // largest corner weight per row × slice of its two rows (key − yc·ns). Held as flat
+    // rows: ~500,000 equations of two heap lists each held 330 MB at the peak.
+    type CellEqs = (SparseRows, Vec<f64>, Vec<f64>);
     let per_cell: Vec<CellEqs> = (0..h - 1)
         .into_par_iter()
         .map(|yc| {
-            let mut eqs: Vec<Eq> = Vec::new();
-            let mut typical: Vec<(usize, f64)> = Vec::new();
+            let mut eqs = SparseRows::default();
+            let mut misfits: Vec<f64> = Vec::new();
+            let mut typical = vec![0f64; 2 * ns];
             for ry in 0..q_row {
                 let fy = (ry as f64 + 0.5) / q_row as f64;
                 let phi_m = row_phi(yc) + fy * (row_phi(yc + 1) - row_phi(yc));
@@ -1143,7 +1146,8 @@ fn fit_horizon_blend(
                                         continue;
                                     }
                                     let key = y * ns + s;
-                                    typical.push((key, weight * lambda[s] * w));
+                                    let t = &mut typical[key - yc * ns];
+                                    *t = t.max(weight * lambda[s] * w);
                                     let hs = hz[key];
                                     let (lo, hi) = (hs.min(uq), hs.max(uq));
                                     let k0 = (lo / du).floor() as usize;
@@ -1161,43 +1165,43 @@ fn fit_horizon_blend(
                                         }
                                     }
                                 }
-                                eqs.push((idx, coef, -resid * weight, (resid * weight).powi(2)));
+                                eqs.push(&idx, &coef, -resid * weight);
+                                misfits.push((resid * weight).powi(2));
                             }
                         }
                     }
                 }
             }
-            (eqs, typical)
+            (eqs, misfits, typical)
         })
         .collect();
     let mut typical = vec![0f64; h * ns];
-    let (mut eq_idx, mut eq_coef, mut eq_rhs) = (Vec::new(), Vec::new(), Vec::new());
+    let mut system = SparseRows::default();
     let mut misfit0 = 0.0;
-    for (eqs, typ) in per_cell {
-        for (key, v) in typ {
-            typical[key] = typical[key].max(v);
+    for (yc, (eqs, misfits, typ)) in per_cell.into_iter().enumerate() {
+        for (t, v) in typical[yc * ns..].iter_mut().zip(typ) {
+            *t = t.max(v);
         }
-        for (i, c, r, m) in eqs {
+        for m in misfits {
             misfit0 += m;
-            eq_idx.push(i);
-            eq_coef.push(c);
-            eq_rhs.push(r);
         }
+        system.append(eqs);
     }
     // Regularisation: each unknown kept near its value, with the weight of the misfit a
     // change of it over one cell would cause.
     for key in 0..h * ns {
         for i in offset[key]..offset[key + 1] {
-            eq_idx.push(vec![i]);
-            eq_coef.push(vec![
-                HORIZON_FIT_REGULARISATION * typical[key].max(1e-300) * du,
-            ]);
-            eq_rhs.push(0.0);
+            system.push(
+                &[i],
+                &[HORIZON_FIT_REGULARISATION * typical[key].max(1e-300) * du],
+                0.0,
+            );
         }
     }
-    let dv = cgls(&eq_idx, &eq_coef, &eq_rhs, n_unknowns, 200);
+    let dv = cgls(&system, n_unknowns, 200);
     let mut misfit1 = 0.0;
-    for ((idx, coef), rhs) in eq_idx.iter().zip(&eq_coef).zip(&eq_rhs) {
+    for (row, rhs) in system.rhs.iter().enumerate() {
+        let (idx, coef) = system.row(row);
         let r: f64 = idx.iter().zip(coef).map(|(&i, c)| c * dv[i]).sum::<f64>() - rhs;
         misfit1 += r * r;
     }
@@ -1315,24 +1319,64 @@ fn fit_horizon_blend(
     report
 }
 
+/// Sparse rows of a least-squares system, flat (compressed sparse rows): row k's unknowns
+/// and coefficients are `col[ptr[k]..ptr[k + 1]]` and `val[..]`, its right-hand side
+/// `rhs[k]`.
+struct SparseRows {
+    ptr: Vec<usize>,
+    col: Vec<usize>,
+    val: Vec<f64>,
+    rhs: Vec<f64>,
+}
+
+impl Default for SparseRows {
+    fn default() -> Self {
+        SparseRows {
+            ptr: vec![0],
+            col: Vec::new(),
+            val: Vec::new(),
+            rhs: Vec::new(),
+        }
+    }
+}
+
+impl SparseRows {
+    fn push(&mut self, col: &[usize], val: &[f64], rhs: f64) {
+        self.col.extend_from_slice(col);
+        self.val.extend_from_slice(val);
+        self.ptr.push(self.col.len());
+        self.rhs.push(rhs);
+    }
+    /// `other`'s rows after these, in order.
+    fn append(&mut self, other: SparseRows) {
+        let base = self.col.len();
+        self.col.extend_from_slice(&other.col);
+        self.val.extend_from_slice(&other.val);
+        self.ptr.extend(other.ptr[1..].iter().map(|p| p + base));
+        self.rhs.extend_from_slice(&other.rhs);
+    }
+    fn row(&self, k: usize) -> (&[usize], &[f64]) {
+        let (a, b) = (self.ptr[k], self.ptr[k + 1]);
+        (&self.col[a..b], &self.val[a..b])
+    }
+}
+
 /// Least squares min Σ_r (Σ_j A_rj x_j − b_r)² by conjugate gradients on the normal
-/// equations (CGLS), from x = 0, `iterations` at most. Rows are sparse (index, value) lists.
-fn cgls(
-    idx: &[Vec<usize>],
-    coef: &[Vec<f64>],
-    rhs: &[f64],
-    n: usize,
-    iterations: usize,
-) -> Vec<f64> {
+/// equations (CGLS), from x = 0, `iterations` at most.
+fn cgls(a: &SparseRows, n: usize, iterations: usize) -> Vec<f64> {
+    let rows = a.rhs.len();
     let apply = |x: &[f64]| -> Vec<f64> {
-        idx.iter()
-            .zip(coef)
-            .map(|(i, c)| i.iter().zip(c).map(|(&j, v)| v * x[j]).sum())
+        (0..rows)
+            .map(|k| {
+                let (i, c) = a.row(k);
+                i.iter().zip(c).map(|(&j, v)| v * x[j]).sum()
+            })
             .collect()
     };
     let apply_t = |r: &[f64]| -> Vec<f64> {
         let mut out = vec![0.0; n];
-        for ((i, c), rv) in idx.iter().zip(coef).zip(r) {
+        for (k, rv) in r.iter().enumerate() {
+            let (i, c) = a.row(k);
             for (&j, v) in i.iter().zip(c) {
                 out[j] += v * rv;
             }
@@ -1340,7 +1384,7 @@ fn cgls(
         out
     };
     let mut x = vec![0.0; n];
-    let mut r = rhs.to_vec();
+    let mut r = a.rhs.clone();
     let mut s = apply_t(&r);
     let mut p = s.clone();
     let mut gamma: f64 = s.iter().map(|v| v * v).sum();
