@@ -152,6 +152,14 @@ impl Default for RglWriteOptions {
 }
 
 impl RglWriteOptions {
+    /// Bytes of the file's tables (VNDF, luminance and RGB, f32, per θi × φi slice); the
+    /// NDF, σ and header add a few kilobytes.
+    fn file_bytes(&self, isotropic: bool) -> u64 {
+        let slices = self.theta_slices as u64 * if isotropic { 1 } else { self.phi_slices } as u64;
+        let per_slice = (self.vndf_res as u64).pow(2) + 4 * (self.colour_res as u64).pow(2);
+        slices.saturating_mul(per_slice).saturating_mul(4)
+    }
+
     fn validate(&self) -> Result<()> {
         let check = |name: &str, v: usize, lo: usize, hi: usize| {
             if v < lo || v > hi {
@@ -178,6 +186,15 @@ impl RglWriteOptions {
         Ok(())
     }
 }
+
+/// The writer's peak memory per byte of the file's tables ([`RglWriteOptions::file_bytes`]),
+/// an upper value from measurements (`/usr/bin/time -f %M`, 2026-12-08): 5.5× for 128 θi
+/// slices of 128² VNDF and 256² colour nodes (791 MB), 7.8× for 64 slices of 256² and 128²
+/// (264 MB), 8.7× for the default anisotropic file (17 × 32 slices, 620 MB; the horizon fit's
+/// system is most of the rest). Work beyond `--max-memory` is refused before it starts: the
+/// largest options the ranges allow (256 × 256 slices of 1024² and 512² nodes) make a
+/// 550 GB file.
+const WORKING_BYTES_PER_FILE_BYTE: u64 = 9;
 
 /// A written file and what went into it.
 #[derive(Clone, Debug)]
@@ -219,6 +236,10 @@ fn write_rgl_fitted(
         )));
     }
     let isotropic = src.is_isotropic();
+    crate::memory::require(
+        "writing this RGL file",
+        WORKING_BYTES_PER_FILE_BYTE.saturating_mul(opts.file_bytes(isotropic)),
+    )?;
     let mut notes = Vec::new();
     if src
         .specular_coefficient(Vec3::from_spherical(0.5, 0.0))
@@ -1058,9 +1079,8 @@ fn fit_horizon_blend(
     // Queries per cell and axis: HORIZON_FIT_QUERIES for isotropic files; anisotropic ones
     // have 16 times the cells (φi): 2 per axis (θi, φi, row) keep the joint system at ~500,000
     // equations (default file: 35 s and 620 MB peak for the whole conversion, 851 MB with two
-    // heap lists per equation, against 26 s and
-    // 520 MB with each row fitted alone; 4 per θi and φi took 52 s and 1.24 GB for no better
-    // file).
+    // heap lists per equation, against 26 s and 520 MB with each row fitted alone; 4 per θi
+    // and φi took 52 s and 1.24 GB for no better file).
     let (q, q_row) = if np > 1 {
         (2, 2)
     } else {
@@ -1684,6 +1704,30 @@ mod tests {
             band_error(&fitted, src, 0.02, 1.0),
             band_error(&nodal, src, 0.02, 1.0),
         ]
+    }
+
+    /// The memory guard's size of the file's tables is the written file's size but for the
+    /// NDF, σ, header and validity fields (a few kilobytes), isotropic and anisotropic.
+    #[test]
+    fn the_file_bytes_the_memory_guard_scales_are_the_files_tables() {
+        let opts = RglWriteOptions {
+            theta_slices: 6,
+            phi_slices: 5,
+            ndf_res: 16,
+            ndf_phi_res: 9,
+            vndf_res: 24,
+            colour_res: 12,
+            ..RglWriteOptions::default()
+        };
+        for spec in ["ggx:alpha=0.3", "ggx:alpha_x=0.1,alpha_y=0.3"] {
+            let src = crate::model::Model::parse(spec).unwrap();
+            let written = write_rgl(&src, &opts).unwrap().bytes.len() as u64;
+            let tables = opts.file_bytes(src.is_isotropic());
+            assert!(
+                tables <= written && written - tables < 16_384,
+                "{spec}: tables {tables} B, file {written} B"
+            );
+        }
     }
 
     fn band_error(file: &super::super::RglBsdf, src: &dyn Brdf, z0: f64, z1: f64) -> f64 {
