@@ -115,6 +115,17 @@ pub fn write_table(table: &Table, path: &Path, plan: &OutputPlan) -> Result<usiz
 }
 
 /// Progress bars only when a person is watching.
+/// A one-line JSON report on stdout, or on stderr when the output file itself goes to
+/// stdout (`-o -`).
+pub fn print_json_line(text: &str, output: &Path) -> anyhow::Result<()> {
+    if output.as_os_str() == "-" {
+        eprintln!("{text}");
+    } else {
+        outln!("{text}");
+    }
+    Ok(())
+}
+
 pub fn stderr_is_terminal() -> bool {
     std::io::stderr().is_terminal()
 }

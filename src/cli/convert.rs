@@ -112,11 +112,7 @@ pub fn run(a: ConvertArgs) -> anyhow::Result<i32> {
             "grid": grid.describe(),
         })
         .to_string();
-        if a.output.as_os_str() == "-" {
-            eprintln!("{text}");
-        } else {
-            outln!("{text}");
-        }
+        super::common::print_json_line(&text, &a.output)?;
     }
     if a.verbose {
         let exact_kept = table.exact().is_some()

@@ -148,11 +148,7 @@ pub fn run(a: &ConvertArgs, input: Source) -> anyhow::Result<i32> {
             "albedo_fidelity": fidelity,
         })
         .to_string();
-        if a.output.as_os_str() == "-" {
-            eprintln!("{text}");
-        } else {
-            outln!("{text}");
-        }
+        super::common::print_json_line(&text, &a.output)?;
     }
     Ok(0)
 }

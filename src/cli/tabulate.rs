@@ -103,11 +103,7 @@ pub fn run(a: TabulateArgs) -> anyhow::Result<i32> {
             "scene": scene_report,
         })
         .to_string();
-        if a.output.as_os_str() == "-" {
-            eprintln!("{text}");
-        } else {
-            outln!("{text}");
-        }
+        super::common::print_json_line(&text, &a.output)?;
     }
     if a.verbose {
         eprintln!(

@@ -190,7 +190,7 @@ impl RglWriteOptions {
 /// The writer's peak memory per byte of the file's tables ([`RglWriteOptions::file_bytes`]),
 /// an upper value from measurements (`/usr/bin/time -f %M`, 2026-12-08): 5.5× for 128 θi
 /// slices of 128² VNDF and 256² colour nodes (791 MB), 7.8× for 64 slices of 256² and 128²
-/// (264 MB), 8.7× for the default anisotropic file (17 × 32 slices, 620 MB; the horizon fit's
+/// (264 MB), 8.0× for the default anisotropic file (17 × 32 slices, 572 MB; the horizon fit's
 /// system is most of the rest). Work beyond `--max-memory` is refused before it starts: the
 /// largest options the ranges allow (256 × 256 slices of 1024² and 512² nodes) make a
 /// 550 GB file.
@@ -1078,7 +1078,7 @@ fn fit_horizon_blend(
     };
     // Queries per cell and axis: HORIZON_FIT_QUERIES for isotropic files; anisotropic ones
     // have 16 times the cells (φi): 2 per axis (θi, φi, row) keep the joint system at ~500,000
-    // equations (default file: 35 s and 620 MB peak for the whole conversion, 851 MB with two
+    // equations (default file: 23–35 s and 572 MB peak for the whole conversion, 851 MB with two
     // heap lists per equation, against 26 s and 520 MB with each row fitted alone; 4 per θi
     // and φi took 52 s and 1.24 GB for no better file).
     let (q, q_row) = if np > 1 {
@@ -1100,6 +1100,8 @@ fn fit_horizon_blend(
             let mut eqs = SparseRows::default();
             let mut misfits: Vec<f64> = Vec::new();
             let mut typical = vec![0f64; 2 * ns];
+            // The (row, slice, weight) corners of one query, reused across queries.
+            let mut corners: Vec<(usize, usize, f64)> = Vec::with_capacity(8);
             for ry in 0..q_row {
                 let fy = (ry as f64 + 0.5) / q_row as f64;
                 let phi_m = row_phi(yc) + fy * (row_phi(yc + 1) - row_phi(yc));
@@ -1119,7 +1121,7 @@ fn fit_horizon_blend(
                                 } else {
                                     0.0
                                 };
-                                let mut corners: Vec<(usize, usize, f64)> = Vec::with_capacity(8);
+                                corners.clear();
                                 for (yy, wy) in [(yc, 1.0 - fy), (yc + 1, fy)] {
                                     if np > 1 {
                                         corners.push((
@@ -1158,8 +1160,6 @@ fn fit_horizon_blend(
                                 let weight = (th.sin() * cell_area).sqrt()
                                     * horizon_slope(th, ph, phi_m, uq)
                                     / rho;
-                                let mut idx = Vec::new();
-                                let mut coef = Vec::new();
                                 let mut resid = 0.0;
                                 for &(y, s, w) in &corners {
                                     if w == 0.0 {
@@ -1180,12 +1180,11 @@ fn fit_horizon_blend(
                                             && k <= wb
                                             && offset[key] + k - wa < offset[key + 1]
                                         {
-                                            idx.push(offset[key] + k - wa);
-                                            coef.push(c * weight);
+                                            eqs.entry(offset[key] + k - wa, c * weight);
                                         }
                                     }
                                 }
-                                eqs.push(&idx, &coef, -resid * weight);
+                                eqs.end_row(-resid * weight);
                                 misfits.push((resid * weight).powi(2));
                             }
                         }
@@ -1211,11 +1210,11 @@ fn fit_horizon_blend(
     // change of it over one cell would cause.
     for key in 0..h * ns {
         for i in offset[key]..offset[key + 1] {
-            system.push(
-                &[i],
-                &[HORIZON_FIT_REGULARISATION * typical[key].max(1e-300) * du],
-                0.0,
+            system.entry(
+                i,
+                HORIZON_FIT_REGULARISATION * typical[key].max(1e-300) * du,
             );
+            system.end_row(0.0);
         }
     }
     let dv = cgls(&system, n_unknowns, 200);
@@ -1361,9 +1360,12 @@ impl Default for SparseRows {
 }
 
 impl SparseRows {
-    fn push(&mut self, col: &[usize], val: &[f64], rhs: f64) {
-        self.col.extend_from_slice(col);
-        self.val.extend_from_slice(val);
+    /// An entry of the row being built (ended by [`SparseRows::end_row`]).
+    fn entry(&mut self, col: usize, val: f64) {
+        self.col.push(col);
+        self.val.push(val);
+    }
+    fn end_row(&mut self, rhs: f64) {
         self.ptr.push(self.col.len());
         self.rhs.push(rhs);
     }
